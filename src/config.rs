@@ -1,0 +1,212 @@
+//! Configuration: every number of the model lives here, with the paper's values as defaults.
+//! Files are YAML in the ROS 2 parameter-file layout (`<node>: ros__parameters: {...}`) so the same
+//! file serves `pegs node --params-file`; a plain mapping without that wrapper is accepted too.
+
+use crate::physics::Effect;
+use anyhow::{Context, Result, bail};
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The whole configuration file. Sections grow with the system (render, correct, ros, ...).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Config {
+    pub physics: PhysicsConfig,
+}
+
+/// Position-based dynamics (spec section 2, "Predict").
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PhysicsConfig {
+    /// Length of one tick in seconds.
+    pub dt: f32,
+    pub substeps: u32,
+    /// Jacobi iterations per substep.
+    pub iterations: u32,
+    /// Gravity in m/s^2 (world z up). Zero it to ablate the gravity prior.
+    pub gravity: Vec3,
+    /// Velocities are multiplied by this after every tick (empirical, < 1; 1 disables it).
+    pub damping: f32,
+    /// Over-relaxation of averaged Jacobi corrections (1 = plain averaging).
+    pub relaxation: f32,
+    /// Fraction of the shape-matching correction applied per iteration (1 = rigid).
+    pub shape_stiffness: f32,
+    /// Weight (times its mass) in shape matching of a particle pinned by something immovable in
+    /// the current sweep: touching a kinematic or static body, or held by static friction on the
+    /// ground. The rigid body then moves with its contact points, as a rigid body does, instead of
+    /// the averaging over all its particles diluting the contact (1 disables it).
+    pub pin_weight: f32,
+    pub ground: GroundConfig,
+    pub collisions: CollisionConfig,
+    /// Extra physical effects, named and parameterised (see `physics::effects`).
+    pub effects: Vec<Effect>,
+}
+
+impl Default for PhysicsConfig {
+    fn default() -> Self {
+        Self {
+            dt: 1.0 / 30.0,
+            substeps: 20,
+            iterations: 4,
+            gravity: Vec3::new(0.0, 0.0, -9.81),
+            damping: 0.99,
+            relaxation: 1.0,
+            shape_stiffness: 1.0,
+            pin_weight: 100.0,
+            ground: GroundConfig::default(),
+            collisions: CollisionConfig::default(),
+            effects: Vec::new(),
+        }
+    }
+}
+
+/// The ground plane `normal . x = height` with Coulomb friction.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GroundConfig {
+    pub enabled: bool,
+    /// Unit normal pointing out of the table (normalised on load).
+    pub normal: Vec3,
+    /// Signed distance of the plane from the origin along `normal`, metres.
+    pub height: f32,
+    pub static_friction: f32,
+    pub kinetic_friction: f32,
+}
+
+impl Default for GroundConfig {
+    fn default() -> Self {
+        Self { enabled: true, normal: Vec3::Z, height: 0.0, static_friction: 0.5, kinetic_friction: 0.4 }
+    }
+}
+
+/// Particle-particle contacts between different shapes.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CollisionConfig {
+    pub enabled: bool,
+    pub static_friction: f32,
+    pub kinetic_friction: f32,
+    /// Extra search distance for contact candidates, as a fraction of the largest particle radius.
+    pub margin: f32,
+}
+
+impl Default for CollisionConfig {
+    fn default() -> Self {
+        Self { enabled: true, static_friction: 0.3, kinetic_friction: 0.25, margin: 0.5 }
+    }
+}
+
+impl PhysicsConfig {
+    /// Reject values that would make the solver meaningless instead of silently misbehaving.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            bail!("physics.dt must be a positive number of seconds, got {}", self.dt);
+        }
+        if self.substeps == 0 || self.iterations == 0 {
+            bail!("physics.substeps and physics.iterations must be at least 1");
+        }
+        if !self.gravity.is_finite() {
+            bail!("physics.gravity must be finite");
+        }
+        if !(0.0..=1.0).contains(&self.damping) {
+            bail!("physics.damping must be in [0, 1], got {}", self.damping);
+        }
+        if !(self.relaxation > 0.0 && self.relaxation < 2.0) {
+            bail!("physics.relaxation must be in (0, 2), got {}", self.relaxation);
+        }
+        if !(self.shape_stiffness > 0.0 && self.shape_stiffness <= 1.0) {
+            bail!("physics.shape_stiffness must be in (0, 1], got {}", self.shape_stiffness);
+        }
+        if !(self.pin_weight.is_finite() && self.pin_weight >= 1.0) {
+            bail!("physics.pin_weight must be >= 1, got {}", self.pin_weight);
+        }
+        if self.ground.normal.length() < 1e-6 || !self.ground.normal.is_finite() {
+            bail!("physics.ground.normal must be a non-zero vector");
+        }
+        for (name, mu) in [
+            ("ground.static_friction", self.ground.static_friction),
+            ("ground.kinetic_friction", self.ground.kinetic_friction),
+            ("collisions.static_friction", self.collisions.static_friction),
+            ("collisions.kinetic_friction", self.collisions.kinetic_friction),
+        ] {
+            if !(mu.is_finite() && mu >= 0.0) {
+                bail!("physics.{name} must be >= 0, got {mu}");
+            }
+        }
+        for e in &self.effects {
+            e.validate()?;
+        }
+        Ok(())
+    }
+}
+
+impl Config {
+    /// Parse YAML text, with or without the ROS `<node>: ros__parameters:` wrapper.
+    pub fn from_yaml(text: &str) -> Result<Self> {
+        let value: serde_yaml_ng::Value = serde_yaml_ng::from_str(text).context("configuration is not valid YAML")?;
+        let params = ros_parameters(&value).unwrap_or(&value);
+        let config: Config = if params.is_null() {
+            Config::default()
+        } else {
+            serde_yaml_ng::from_value(params.clone()).context("configuration does not match the expected fields")?
+        };
+        let mut config = config;
+        config.physics.ground.normal = config.physics.ground.normal.normalize_or(Vec3::Z);
+        config.physics.validate()?;
+        Ok(config)
+    }
+
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read configuration {}", path.display()))?;
+        Self::from_yaml(&text).with_context(|| format!("in configuration {}", path.display()))
+    }
+}
+
+/// The `ros__parameters` mapping of the first node in a ROS 2 parameter file, if it is one.
+fn ros_parameters(value: &serde_yaml_ng::Value) -> Option<&serde_yaml_ng::Value> {
+    let map = value.as_mapping()?;
+    map.values().find_map(|node| node.as_mapping()?.get("ros__parameters"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shipped_config_parses_and_matches_defaults() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/pegs.yaml");
+        let c = Config::load(&path).expect("config/pegs.yaml must load");
+        assert_eq!(c.physics, PhysicsConfig::default(), "config/pegs.yaml documents the defaults; keep them equal");
+    }
+
+    #[test]
+    fn plain_mapping_and_ros_wrapper_are_both_accepted() {
+        let plain = Config::from_yaml("physics:\n  substeps: 7\n").unwrap();
+        let ros = Config::from_yaml("pegs:\n  ros__parameters:\n    physics:\n      substeps: 7\n").unwrap();
+        assert_eq!(plain.physics.substeps, 7);
+        assert_eq!(plain, ros);
+        assert_eq!(Config::from_yaml("").unwrap(), Config::default());
+    }
+
+    #[test]
+    fn bad_values_are_rejected_with_the_field_name() {
+        let e = Config::from_yaml("physics:\n  dt: -1\n").unwrap_err();
+        assert!(format!("{e:#}").contains("physics.dt"), "{e:#}");
+        let e = Config::from_yaml("physics:\n  damping: 1.5\n").unwrap_err();
+        assert!(format!("{e:#}").contains("damping"), "{e:#}");
+        let e = Config::from_yaml("physics:\n  substepz: 3\n").unwrap_err();
+        assert!(format!("{e:#}").contains("substepz"), "{e:#}");
+    }
+
+    #[test]
+    fn effects_are_read_by_name() {
+        let c = Config::from_yaml(
+            "physics:\n  effects:\n    - effect: viscous_drag\n      object: box\n      coefficient: 0.5\n    - effect: table_tilt\n      angle: 0.01\n      azimuth: 0.0\n",
+        )
+        .unwrap();
+        assert_eq!(c.physics.effects.len(), 2);
+        assert_eq!(c.physics.effects[0].name(), "viscous_drag");
+        assert_eq!(c.physics.effects[1].parameters()[0], ("angle", 0.01));
+    }
+}

@@ -1,0 +1,15 @@
+//! pegs: a realtime, correctable world model. Particles simulated with position-based dynamics
+//! predict where objects go; Gaussians bonded to the particles are rendered and compared with
+//! camera images, and the photometric error becomes visual forces that correct the particles.
+//!
+//! The modules follow the loop: `world` (plain data) -> `physics` (predict) -> ... Scenes are
+//! built in `scene`; `config` holds every number; `demo` and `bench` are the command-line jobs.
+
+pub mod bench;
+pub mod config;
+pub mod demo;
+pub mod math;
+pub mod physics;
+pub mod scene;
+pub mod trajectory;
+pub mod world;

@@ -1,0 +1,356 @@
+//! Predict: position-based dynamics (spec section 2). One `Solver::step` advances the world by one
+//! tick of `substeps` substeps; each substep integrates gravity, external forces and effects, then
+//! runs `iterations` Jacobi sweeps over ground, contacts, distance constraints and shape matching,
+//! and finally derives velocities from positions. Velocities are damped once per tick.
+//!
+//! The solver owns scratch buffers and the effect model bound to the world; the world itself stays
+//! plain data. Nothing here renders or reads sensors.
+
+mod collide;
+mod distance;
+pub mod effects;
+mod ground;
+mod shape_matching;
+mod spatial_hash;
+
+pub use effects::Effect;
+pub use ground::Plane;
+
+use crate::config::PhysicsConfig;
+use crate::math::Pose;
+use crate::world::{Phase, ShapeId, ShapeKind, World};
+use anyhow::Result;
+use effects::{EffectModel, ShapeState};
+use glam::{Quat, Vec3};
+use rayon::prelude::*;
+use spatial_hash::{NeighbourLists, SpatialHash};
+
+/// Supplies kinematic shape poses within a tick. `tick_fraction` runs over (0, 1]; returning `None`
+/// interpolates between the shape's pose at the start of the tick and its `target`.
+pub trait KinematicDriver {
+    fn pose_at(&mut self, shape: ShapeId, tick_fraction: f32) -> Option<Pose>;
+}
+
+/// The default driver: linear/spherical interpolation towards `Shapes::target`.
+pub struct InterpolateTargets;
+
+impl KinematicDriver for InterpolateTargets {
+    fn pose_at(&mut self, _: ShapeId, _: f32) -> Option<Pose> {
+        None
+    }
+}
+
+/// What the last tick did, for diagnostics and benchmarks.
+#[derive(Clone, Debug, Default)]
+pub struct TickStats {
+    /// Candidate contact pairs in the last substep (ordered pairs).
+    pub contact_candidates: usize,
+    /// Per shape: number of its particles touching the ground at the end of the tick.
+    pub ground_contacts: Vec<u32>,
+}
+
+pub struct Solver {
+    config: PhysicsConfig,
+    effects: EffectModel,
+    /// Layout the effect model and masses were bound to (particle and shape counts).
+    bound_to: (usize, usize),
+    inv_mass: Vec<f32>,
+    shape_mass: Vec<f32>,
+    shape_velocity: Vec<Vec3>,
+    prev: Vec<Vec3>,
+    accel: Vec<Vec3>,
+    delta: Vec<Vec3>,
+    count: Vec<u32>,
+    /// Particles held by static friction against something immovable in the current sweep.
+    pinned: Vec<bool>,
+    hash: SpatialHash,
+    neighbours: NeighbourLists,
+    tick_start: Vec<Pose>,
+    attachments: distance::LongRangeAttachments,
+    pub stats: TickStats,
+}
+
+impl Solver {
+    /// A solver for `world` with `config` (validated; effects bound to the world's objects).
+    pub fn new(config: PhysicsConfig, world: &World) -> Result<Self> {
+        config.validate()?;
+        let mut solver = Solver {
+            effects: EffectModel::bind(&config.effects, world)?,
+            config,
+            bound_to: (usize::MAX, usize::MAX),
+            inv_mass: Vec::new(),
+            shape_mass: Vec::new(),
+            pinned: Vec::new(),
+            shape_velocity: Vec::new(),
+            prev: Vec::new(),
+            accel: Vec::new(),
+            delta: Vec::new(),
+            count: Vec::new(),
+            hash: SpatialHash::default(),
+            neighbours: NeighbourLists::default(),
+            tick_start: Vec::new(),
+            attachments: distance::LongRangeAttachments::default(),
+            stats: TickStats::default(),
+        };
+        solver.bind(world)?;
+        Ok(solver)
+    }
+
+    pub fn config(&self) -> &PhysicsConfig {
+        &self.config
+    }
+
+    /// Replace the effects (e.g. after a diagnosis adds one) and rebind them to `world`.
+    pub fn set_effects(&mut self, effects: Vec<Effect>, world: &World) -> Result<()> {
+        let model = EffectModel::bind(&effects, world)?;
+        self.effects = model;
+        self.config.effects = effects;
+        self.bind(world)
+    }
+
+    /// Effective inverse masses (nominal masses with mass effects applied).
+    pub fn inv_mass(&self) -> &[f32] {
+        &self.inv_mass
+    }
+
+    /// Recompute everything derived from the world's layout: effective masses, shape mass
+    /// properties and scratch sizes. Called automatically when the layout changes.
+    pub fn bind(&mut self, world: &World) -> Result<()> {
+        let (n, ns) = (world.particles.len(), world.shapes.len());
+        if self.bound_to.0 != n || self.bound_to.1 != ns {
+            self.effects = EffectModel::bind(&self.config.effects, world)?;
+        }
+        self.inv_mass = self.effects.effective_inv_mass(world)?;
+        self.shape_mass = (0..ns)
+            .map(|s| world.shapes.range(s as ShapeId).filter(|&i| self.inv_mass[i] > 0.0).map(|i| 1.0 / self.inv_mass[i]).sum())
+            .collect();
+        self.shape_velocity = vec![Vec3::ZERO; ns];
+        self.prev = vec![Vec3::ZERO; n];
+        self.accel = vec![Vec3::ZERO; n];
+        self.delta = vec![Vec3::ZERO; n];
+        self.count = vec![0; n];
+        self.pinned = vec![false; n];
+        self.attachments = distance::LongRangeAttachments::build(world, &self.inv_mass);
+        self.stats.ground_contacts = vec![0; ns];
+        self.bound_to = (n, ns);
+        Ok(())
+    }
+
+    /// Advance one tick, kinematic shapes moving towards their targets.
+    pub fn step(&mut self, world: &mut World) -> Result<()> {
+        self.step_driven(world, &mut InterpolateTargets)
+    }
+
+    /// Advance one tick with kinematic poses from `driver` (e.g. forward kinematics per substep).
+    pub fn step_driven(&mut self, world: &mut World, driver: &mut dyn KinematicDriver) -> Result<()> {
+        if self.bound_to != (world.particles.len(), world.shapes.len()) {
+            self.bind(world)?;
+        }
+        let substeps = self.config.substeps;
+        let h = self.config.dt / substeps as f32;
+        self.tick_start.clone_from(&world.shapes.pose);
+        for sub in 0..substeps {
+            let fraction = (sub + 1) as f32 / substeps as f32;
+            self.place_kinematic(world, driver, fraction);
+            self.integrate(world, h);
+            if self.config.collisions.enabled {
+                self.find_contacts(world);
+            }
+            for _ in 0..self.config.iterations {
+                self.solve_constraints(world);
+            }
+            self.update_velocities(world, h);
+        }
+        self.finish_tick(world);
+        world.time += self.config.dt as f64;
+        Ok(())
+    }
+
+    fn place_kinematic(&mut self, world: &mut World, driver: &mut dyn KinematicDriver, fraction: f32) {
+        for s in 0..world.shapes.len() {
+            if world.shapes.kind[s] != ShapeKind::Kinematic {
+                continue;
+            }
+            let pose = driver
+                .pose_at(s as ShapeId, fraction)
+                .unwrap_or_else(|| self.tick_start[s].interpolate(&world.shapes.target[s], fraction));
+            world.shapes.pose[s] = pose;
+            for i in world.shapes.range(s as ShapeId) {
+                self.prev[i] = world.particles.position[i];
+                world.particles.position[i] = pose.transform_point(world.particles.rest[i]);
+            }
+        }
+    }
+
+    /// v += h a; x* = x + h v for dynamic particles, with a = gravity + external force / m + effects.
+    fn integrate(&mut self, world: &mut World, h: f32) {
+        let gravity = self.config.gravity;
+        let p = &mut world.particles;
+        let inv_mass = &self.inv_mass;
+        self.accel.par_iter_mut().with_min_len(2048).enumerate().for_each(|(i, a)| {
+            *a = if inv_mass[i] > 0.0 { gravity + p.external_force[i] * inv_mass[i] } else { Vec3::ZERO };
+        });
+        if !self.effects.is_empty() {
+            for s in 0..world.shapes.len() {
+                self.shape_velocity[s] = world_shape_velocity(world, s as ShapeId, inv_mass);
+            }
+            let state = ShapeState { mass: &self.shape_mass, velocity: &self.shape_velocity };
+            self.effects.add_accelerations(world, inv_mass, &state, gravity, self.config.ground.normal, &mut self.accel);
+        }
+        let p = &mut world.particles;
+        let accel = &self.accel;
+        p.position
+            .par_iter_mut()
+            .zip(p.velocity.par_iter_mut())
+            .zip(self.prev.par_iter_mut())
+            .with_min_len(2048)
+            .enumerate()
+            .for_each(|(i, ((x, v), prev))| {
+                if inv_mass[i] > 0.0 {
+                    *prev = *x;
+                    *v += h * accel[i];
+                    *x += h * *v;
+                } else if p.phase[i] == Phase::Static {
+                    *prev = *x;
+                }
+            });
+    }
+
+    fn find_contacts(&mut self, world: &World) {
+        let p = &world.particles;
+        let max_radius = p.radius.iter().copied().fold(0.0f32, f32::max);
+        let margin = self.config.collisions.margin * max_radius;
+        self.hash.build(&p.position, 2.0 * max_radius + margin);
+        spatial_hash::find_neighbours(&self.hash, &p.position, &p.radius, &p.shape, &self.inv_mass, margin, &mut self.neighbours);
+        self.stats.contact_candidates = self.neighbours.pair_count();
+    }
+
+    /// One Jacobi sweep: each group's corrections are averaged per particle and applied before the
+    /// next group, ending with shape matching so rigid shapes leave every sweep rigid.
+    fn solve_constraints(&mut self, world: &mut World) {
+        let cfg = &self.config;
+        let p = &mut world.particles;
+        self.pinned.fill(false);
+        if cfg.ground.enabled {
+            let plane = Plane { normal: cfg.ground.normal, height: cfg.ground.height };
+            let base = (cfg.ground.static_friction, cfg.ground.kinetic_friction);
+            let effects = &self.effects;
+            if effects.has_friction_patches() {
+                ground::project_ground(&mut p.position, &self.prev, &p.radius, &self.inv_mass, plane, &|x| effects.ground_friction(x, base), &mut self.pinned);
+            } else {
+                ground::project_ground(&mut p.position, &self.prev, &p.radius, &self.inv_mass, plane, &|_| base, &mut self.pinned);
+            }
+        }
+        if cfg.collisions.enabled && self.neighbours.pair_count() > 0 {
+            let c = &cfg.collisions;
+            collide::collision_corrections(
+                &p.position,
+                &self.prev,
+                &self.inv_mass,
+                &p.radius,
+                &self.neighbours,
+                c.static_friction,
+                c.kinetic_friction,
+                &mut self.delta,
+                &mut self.count,
+                &mut self.pinned,
+            );
+            collide::apply_averaged(&mut p.position, &self.delta, &self.count, cfg.relaxation);
+        }
+        if !world.distance.is_empty() {
+            distance::project_distances(&world.distance, &mut p.position, &self.inv_mass);
+            self.attachments.project(&mut p.position);
+        }
+        self.match_rigid_shapes(world);
+    }
+
+    fn match_rigid_shapes(&mut self, world: &mut World) {
+        let shapes = &world.shapes;
+        let stiffness = self.config.shape_stiffness;
+        let pin_weight = self.config.pin_weight;
+        // Split the position array into each rigid shape's own slice so shapes run in parallel.
+        let mut jobs: Vec<(usize, &mut [Vec3])> = Vec::new();
+        let mut rest_of: &mut [Vec3] = &mut world.particles.position;
+        let mut offset = 0;
+        for s in 0..shapes.len() {
+            if shapes.kind[s] != ShapeKind::Rigid || self.shape_mass[s] <= 0.0 {
+                continue;
+            }
+            let range = shapes.range(s as ShapeId);
+            let (_, tail) = std::mem::take(&mut rest_of).split_at_mut(range.start - offset);
+            let (mine, tail) = tail.split_at_mut(range.len());
+            jobs.push((s, mine));
+            rest_of = tail;
+            offset = range.end;
+        }
+        let rest = &world.particles.rest;
+        let inv_mass = &self.inv_mass;
+        let pinned = &self.pinned;
+        let poses = &world.shapes.pose;
+        let results: Vec<(usize, Pose)> = jobs
+            .into_par_iter()
+            .map(|(s, pos)| {
+                let range = shapes.range(s as ShapeId);
+                let mut rotation: Quat = poses[s].rotation;
+                let (centroid, rest_centroid) = shape_matching::match_shape(
+                    pos,
+                    &rest[range.clone()],
+                    &inv_mass[range.clone()],
+                    &pinned[range],
+                    pin_weight,
+                    &mut rotation,
+                    stiffness,
+                );
+                (s, Pose::new(centroid - rotation * rest_centroid, rotation))
+            })
+            .collect();
+        for (s, pose) in results {
+            world.shapes.pose[s] = pose;
+        }
+    }
+
+    fn update_velocities(&mut self, world: &mut World, h: f32) {
+        let p = &mut world.particles;
+        let prev = &self.prev;
+        p.velocity.par_iter_mut().zip(p.position.par_iter()).with_min_len(2048).enumerate().for_each(|(i, (v, x))| {
+            *v = (*x - prev[i]) / h;
+        });
+    }
+
+    fn finish_tick(&mut self, world: &mut World) {
+        let damping = self.config.damping;
+        let p = &mut world.particles;
+        for i in 0..p.len() {
+            if p.phase[i] == Phase::Dynamic {
+                p.velocity[i] *= damping;
+            }
+            p.external_force[i] = Vec3::ZERO;
+        }
+        let plane_normal = self.config.ground.normal;
+        let height = self.config.ground.height;
+        for s in 0..world.shapes.len() {
+            let range = world.shapes.range(s as ShapeId);
+            if world.shapes.kind[s] == ShapeKind::Rope {
+                world.shapes.pose[s] = Pose::from_translation(world.shape_centroid(s as ShapeId));
+            }
+            self.stats.ground_contacts[s] = if self.config.ground.enabled {
+                let p = &world.particles;
+                range.filter(|&i| plane_normal.dot(p.position[i]) - height <= p.radius[i] * 1.01).count() as u32
+            } else {
+                0
+            };
+        }
+    }
+}
+
+fn world_shape_velocity(world: &World, s: ShapeId, inv_mass: &[f32]) -> Vec3 {
+    let mut mass = 0.0;
+    let mut momentum = Vec3::ZERO;
+    for i in world.shapes.range(s) {
+        if inv_mass[i] > 0.0 {
+            mass += 1.0 / inv_mass[i];
+            momentum += world.particles.velocity[i] / inv_mass[i];
+        }
+    }
+    if mass > 0.0 { momentum / mass } else { Vec3::ZERO }
+}

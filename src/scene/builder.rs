@@ -1,0 +1,92 @@
+//! `WorldBuilder`: adds shapes with contiguous particles and one bonded Gaussian per particle.
+
+use crate::math::Pose;
+use crate::world::{Phase, ShapeId, ShapeKind, World};
+use glam::{Quat, Vec3};
+
+/// Gaussian standard deviation relative to the particle radius for builder-made Gaussians.
+const GAUSSIAN_SCALE_PER_RADIUS: f32 = 0.6;
+
+#[derive(Default)]
+pub struct WorldBuilder {
+    world: World,
+}
+
+impl WorldBuilder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    fn add_solid(&mut self, name: &str, kind: ShapeKind, phase: Phase, body_points: &[Vec3], radius: f32, inv_mass: f32, pose: Pose, colour: Vec3) -> ShapeId {
+        let shape = self.world.shapes.len() as ShapeId;
+        let first = self.world.particles.len();
+        for &r in body_points {
+            let i = self.world.particles.push(pose.transform_point(r), inv_mass, radius, shape, phase, r);
+            self.push_gaussian(i, radius, colour);
+        }
+        self.world.shapes.push(name, kind, first..self.world.particles.len(), pose)
+    }
+
+    fn push_gaussian(&mut self, particle: usize, radius: f32, colour: Vec3) {
+        self.world.gaussians.push(particle as u32, Vec3::ZERO, Quat::IDENTITY, Vec3::splat(GAUSSIAN_SCALE_PER_RADIUS * radius), 0.95, colour);
+    }
+
+    /// A rigid object made of particles at `body_points` (body frame), placed at `pose`.
+    pub fn add_rigid(&mut self, name: &str, body_points: &[Vec3], radius: f32, particle_mass: f32, pose: Pose, colour: Vec3) -> ShapeId {
+        self.add_solid(name, ShapeKind::Rigid, Phase::Dynamic, body_points, radius, 1.0 / particle_mass, pose, colour)
+    }
+
+    /// A kinematic body (robot link, pusher) that follows its `Shapes::target` pose.
+    pub fn add_kinematic(&mut self, name: &str, body_points: &[Vec3], radius: f32, pose: Pose, colour: Vec3) -> ShapeId {
+        self.add_solid(name, ShapeKind::Kinematic, Phase::Kinematic, body_points, radius, 0.0, pose, colour)
+    }
+
+    /// A body that never moves.
+    pub fn add_static(&mut self, name: &str, body_points: &[Vec3], radius: f32, pose: Pose, colour: Vec3) -> ShapeId {
+        self.add_solid(name, ShapeKind::Static, Phase::Static, body_points, radius, 0.0, pose, colour)
+    }
+
+    /// A rope through `points` (world frame): segment constraints between neighbours (rigid) and
+    /// bending constraints between particles two apart with `bending_stiffness` in (0, 1].
+    pub fn add_rope(&mut self, name: &str, points: &[Vec3], radius: f32, particle_mass: f32, bending_stiffness: f32, colour: Vec3) -> ShapeId {
+        let shape = self.world.shapes.len() as ShapeId;
+        let first = self.world.particles.len();
+        for &p in points {
+            let i = self.world.particles.push(p, 1.0 / particle_mass, radius, shape, Phase::Dynamic, Vec3::ZERO);
+            self.push_gaussian(i, radius, colour);
+        }
+        for k in 0..points.len().saturating_sub(1) {
+            let (a, b) = (first + k, first + k + 1);
+            self.world.distance.push(a as u32, b as u32, points[k].distance(points[k + 1]), 1.0);
+        }
+        if bending_stiffness > 0.0 {
+            for k in 0..points.len().saturating_sub(2) {
+                let (a, b) = (first + k, first + k + 2);
+                self.world.distance.push(a as u32, b as u32, points[k].distance(points[k + 2]), bending_stiffness);
+            }
+        }
+        let centroid = points.iter().copied().sum::<Vec3>() / points.len().max(1) as f32;
+        self.world.shapes.push(name, ShapeKind::Rope, first..self.world.particles.len(), Pose::from_translation(centroid))
+    }
+
+    /// Tie two particles together at their current distance (e.g. a rope end to a gripper).
+    pub fn attach(&mut self, a: usize, b: usize) {
+        let d = self.world.particles.position[a].distance(self.world.particles.position[b]);
+        self.world.distance.push(a as u32, b as u32, d, 1.0);
+    }
+
+    /// Give every particle of `shape` the same initial velocity.
+    pub fn set_velocity(&mut self, shape: ShapeId, velocity: Vec3) {
+        for i in self.world.shapes.range(shape) {
+            self.world.particles.velocity[i] = velocity;
+        }
+    }
+
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    pub fn build(self) -> World {
+        self.world
+    }
+}

@@ -1,0 +1,40 @@
+//! Object trajectories as CSV, one row per dynamic object per tick, world frame, metres, ROS
+//! quaternion order: `t,object,x,y,z,qx,qy,qz,qw`. The same layout as `pegs replay`'s objects.csv.
+
+use crate::world::World;
+use anyhow::{Context, Result};
+use std::io::Write;
+use std::path::Path;
+
+pub const HEADER: &str = "t,object,x,y,z,qx,qy,qz,qw";
+
+pub struct TrajectoryWriter {
+    out: std::io::BufWriter<std::fs::File>,
+}
+
+impl TrajectoryWriter {
+    pub fn create(path: &Path) -> Result<Self> {
+        let file = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+        let mut out = std::io::BufWriter::new(file);
+        writeln!(out, "{HEADER}")?;
+        Ok(Self { out })
+    }
+
+    /// Append the pose of every dynamic object at the world's current time.
+    pub fn record(&mut self, world: &World) -> Result<()> {
+        for s in world.shapes.dynamic_ids() {
+            let pose = world.shapes.pose[s as usize];
+            let (p, q) = (pose.translation, pose.rotation);
+            writeln!(
+                self.out,
+                "{:.6},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
+                world.time, world.shapes.name[s as usize], p.x, p.y, p.z, q.x, q.y, q.z, q.w
+            )?;
+        }
+        Ok(())
+    }
+
+    pub fn finish(mut self) -> Result<()> {
+        self.out.flush().context("cannot write trajectory")
+    }
+}

@@ -1,0 +1,169 @@
+//! The world model as plain data: particles, shapes, Gaussians and rope constraints, stored as
+//! structures of arrays (f32). This module owns the layout and simple queries; it never steps
+//! physics (see `physics`) nor renders (see `render`).
+
+mod constraints;
+mod gaussians;
+mod particles;
+mod shapes;
+
+pub use constraints::DistanceConstraints;
+pub use gaussians::{Gaussians, NO_PARENT};
+pub use particles::{Particles, Phase};
+pub use shapes::{ShapeId, ShapeKind, Shapes};
+
+use crate::math::Pose;
+use glam::{Quat, Vec3};
+
+/// Everything the simulation knows about the scene at one instant.
+#[derive(Clone, Debug, Default)]
+pub struct World {
+    pub particles: Particles,
+    pub shapes: Shapes,
+    pub gaussians: Gaussians,
+    /// Distance constraints (rope segments, rope bending, attachments).
+    pub distance: DistanceConstraints,
+    /// Simulation time in seconds.
+    pub time: f64,
+}
+
+impl World {
+    pub fn shape_id(&self, name: &str) -> Option<ShapeId> {
+        self.shapes.name.iter().position(|n| n == name).map(|i| i as ShapeId)
+    }
+
+    /// Orientation of a particle's frame: its shape's rotation for rigid and kinematic shapes,
+    /// the world frame otherwise. Gaussians bonded to the particle rotate with it.
+    pub fn particle_frame_rotation(&self, particle: usize) -> Quat {
+        let s = self.particles.shape[particle] as usize;
+        match self.shapes.kind[s] {
+            ShapeKind::Rigid | ShapeKind::Kinematic | ShapeKind::Static => self.shapes.pose[s].rotation,
+            ShapeKind::Rope => Quat::IDENTITY,
+        }
+    }
+
+    /// Pose of a particle's frame in the world.
+    pub fn particle_frame(&self, particle: usize) -> Pose {
+        Pose::new(self.particles.position[particle], self.particle_frame_rotation(particle))
+    }
+
+    /// World-space means and rotations of all Gaussians (bonded ones follow their parent's frame).
+    pub fn gaussian_world_means(&self) -> (Vec<Vec3>, Vec<Quat>) {
+        let g = &self.gaussians;
+        let mut means = Vec::with_capacity(g.len());
+        let mut rots = Vec::with_capacity(g.len());
+        for i in 0..g.len() {
+            let parent = g.parent[i];
+            if parent == NO_PARENT {
+                means.push(g.local_mean[i]);
+                rots.push(g.local_rotation[i]);
+            } else {
+                let frame = self.particle_frame(parent as usize);
+                means.push(frame.transform_point(g.local_mean[i]));
+                rots.push((frame.rotation * g.local_rotation[i]).normalize());
+            }
+        }
+        (means, rots)
+    }
+
+    /// Bond world-space Gaussians to the closest particle among `candidates`, storing their mean
+    /// and rotation in that particle's frame (the paper's last initialisation step).
+    pub fn bond_gaussians_to_closest(&mut self, gaussian_ids: std::ops::Range<usize>, candidates: &[u32]) {
+        if candidates.is_empty() {
+            return;
+        }
+        for gi in gaussian_ids {
+            let world_mean = self.gaussians.local_mean[gi];
+            let world_rot = self.gaussians.local_rotation[gi];
+            let mut best = candidates[0];
+            let mut best_d = f32::INFINITY;
+            for &p in candidates {
+                let d = self.particles.position[p as usize].distance_squared(world_mean);
+                if d < best_d {
+                    best_d = d;
+                    best = p;
+                }
+            }
+            let inv = self.particle_frame(best as usize).inverse();
+            self.gaussians.parent[gi] = best;
+            self.gaussians.local_mean[gi] = inv.transform_point(world_mean);
+            self.gaussians.local_rotation[gi] = (inv.rotation * world_rot).normalize();
+        }
+    }
+
+    /// Total linear momentum of the dynamic particles, using the world's nominal masses.
+    pub fn linear_momentum(&self) -> Vec3 {
+        let p = &self.particles;
+        (0..p.len())
+            .filter(|&i| p.phase[i] == Phase::Dynamic && p.inv_mass[i] > 0.0)
+            .map(|i| p.velocity[i] / p.inv_mass[i])
+            .sum()
+    }
+
+    /// Mass-weighted centroid of a shape's particles.
+    pub fn shape_centroid(&self, shape: ShapeId) -> Vec3 {
+        let p = &self.particles;
+        let mut sum = Vec3::ZERO;
+        let mut mass = 0.0;
+        for i in self.shapes.range(shape) {
+            let m = if p.inv_mass[i] > 0.0 { 1.0 / p.inv_mass[i] } else { 1.0 };
+            sum += m * p.position[i];
+            mass += m;
+        }
+        if mass > 0.0 { sum / mass } else { Vec3::ZERO }
+    }
+
+    /// Mass-weighted mean velocity of a shape's particles.
+    pub fn shape_velocity(&self, shape: ShapeId) -> Vec3 {
+        let p = &self.particles;
+        let mut sum = Vec3::ZERO;
+        let mut mass = 0.0;
+        for i in self.shapes.range(shape) {
+            let m = if p.inv_mass[i] > 0.0 { 1.0 / p.inv_mass[i] } else { 1.0 };
+            sum += m * p.velocity[i];
+            mass += m;
+        }
+        if mass > 0.0 { sum / mass } else { Vec3::ZERO }
+    }
+
+    /// Largest distance of a rigid shape's particles from where its current pose puts their rest
+    /// positions: zero for a perfectly rigid body.
+    pub fn rigid_deviation(&self, shape: ShapeId) -> f32 {
+        let pose = self.shapes.pose[shape as usize];
+        self.shapes
+            .range(shape)
+            .map(|i| (pose.transform_point(self.particles.rest[i]) - self.particles.position[i]).length())
+            .fold(0.0, f32::max)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{WorldBuilder, box_lattice};
+
+    #[test]
+    fn bonded_gaussians_follow_their_shape_rigidly() {
+        let mut b = WorldBuilder::new();
+        let pose = Pose::new(Vec3::new(0.0, 0.0, 0.1), Quat::from_rotation_z(0.3));
+        let s = b.add_rigid("box", &box_lattice(Vec3::splat(0.02), 0.01), 0.005, 0.001, pose, Vec3::ONE);
+        let mut w = b.build();
+        // A free Gaussian placed off any particle, then bonded to the box.
+        let gi = w.gaussians.push(NO_PARENT, Vec3::new(0.013, -0.004, 0.11), Quat::from_rotation_x(0.2), Vec3::splat(0.003), 0.9, Vec3::X);
+        let candidates: Vec<u32> = w.shapes.range(s).map(|i| i as u32).collect();
+        w.bond_gaussians_to_closest(gi..gi + 1, &candidates);
+        let (m0, r0) = w.gaussian_world_means();
+        assert!((m0[gi] - Vec3::new(0.013, -0.004, 0.11)).length() < 1e-6, "bonding must not move the Gaussian");
+        assert!(crate::math::rotation_angle_between(r0[gi], Quat::from_rotation_x(0.2)) < 1e-3);
+
+        // Move the shape rigidly: the Gaussian must move with the same transform.
+        let motion = Pose::new(Vec3::new(0.2, -0.1, 0.05), Quat::from_rotation_y(0.7));
+        for i in w.shapes.range(s) {
+            w.particles.position[i] = motion.transform_point(w.particles.position[i]);
+        }
+        w.shapes.pose[s as usize] = motion.mul(&w.shapes.pose[s as usize]);
+        let (m1, r1) = w.gaussian_world_means();
+        assert!((m1[gi] - motion.transform_point(m0[gi])).length() < 1e-5);
+        assert!(crate::math::rotation_angle_between(r1[gi], motion.rotation * r0[gi]) < 1e-3);
+    }
+}
