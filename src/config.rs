@@ -37,6 +37,9 @@ pub struct PhysicsConfig {
     /// ground. The rigid body then moves with its contact points, as a rigid body does, instead of
     /// the averaging over all its particles diluting the contact (1 disables it).
     pub pin_weight: f32,
+    /// Gauss-Seidel sweeps over distance constraints (ropes) per Jacobi iteration, alternating
+    /// direction. A 50-link rope swinging from one end stretched by 2.0 % with 1 sweep, 0.5 % with 4.
+    pub distance_sweeps: u32,
     pub ground: GroundConfig,
     pub collisions: CollisionConfig,
     /// Extra physical effects, named and parameterised (see `physics::effects`).
@@ -54,6 +57,7 @@ impl Default for PhysicsConfig {
             relaxation: 1.0,
             shape_stiffness: 1.0,
             pin_weight: 100.0,
+            distance_sweeps: 4,
             ground: GroundConfig::default(),
             collisions: CollisionConfig::default(),
             effects: Vec::new(),
@@ -103,8 +107,8 @@ impl PhysicsConfig {
         if !(self.dt.is_finite() && self.dt > 0.0) {
             bail!("physics.dt must be a positive number of seconds, got {}", self.dt);
         }
-        if self.substeps == 0 || self.iterations == 0 {
-            bail!("physics.substeps and physics.iterations must be at least 1");
+        if self.substeps == 0 || self.iterations == 0 || self.distance_sweeps == 0 {
+            bail!("physics.substeps, physics.iterations and physics.distance_sweeps must be at least 1");
         }
         if !self.gravity.is_finite() {
             bail!("physics.gravity must be finite");

@@ -58,7 +58,7 @@ pub fn collision_corrections(
 
 /// `x += relaxation * delta / count` for every particle with at least one correction.
 pub fn apply_averaged(pos: &mut [Vec3], delta: &[Vec3], count: &[u32], relaxation: f32) {
-    pos.par_iter_mut().with_min_len(1024).enumerate().for_each(|(i, x)| {
+    pos.par_iter_mut().with_min_len(8192).enumerate().for_each(|(i, x)| {
         if count[i] > 0 {
             *x += relaxation * delta[i] / count[i] as f32;
         }

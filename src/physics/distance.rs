@@ -1,16 +1,18 @@
 //! Distance constraints (rope segments, bending, attachments) and long-range attachments.
 //!
-//! Unlike the rest of the solver these are projected Gauss-Seidel, in place and in chain order:
-//! averaged Jacobi moves tension about one link per sweep, so a 50-link rope held by one end
-//! stretched by 5-30 % with 4 sweeps (measured), while ropes are small enough that a sequential
-//! sweep costs nothing. The order is fixed, so results stay deterministic.
+//! Unlike the rest of the solver these are projected Gauss-Seidel, in place and in a fixed order
+//! (so results stay deterministic), several sweeps per iteration: averaged Jacobi moves tension
+//! about one link per sweep, and a 50-link rope swinging from one end stretched by 29 % with it
+//! (3 % with long-range attachments), while ropes are small enough that sweeps cost nothing.
 
 use crate::world::DistanceConstraints;
 use glam::Vec3;
 
-/// Project every constraint once, in index order (segments in chain order, then bending).
-pub fn project_distances(c: &DistanceConstraints, pos: &mut [Vec3], inv_mass: &[f32]) {
-    for k in 0..c.len() {
+/// Project every constraint once, in index order or, with `reverse`, backwards. Alternating the
+/// direction between sweeps (symmetric Gauss-Seidel) carries tension both ways along a chain.
+pub fn project_distances(c: &DistanceConstraints, pos: &mut [Vec3], inv_mass: &[f32], reverse: bool) {
+    for step in 0..c.len() {
+        let k = if reverse { c.len() - 1 - step } else { step };
         let (a, b) = (c.a[k] as usize, c.b[k] as usize);
         let (wa, wb) = (inv_mass[a], inv_mass[b]);
         if wa + wb <= 0.0 {
@@ -36,7 +38,7 @@ mod tests {
         let mut c = DistanceConstraints::default();
         c.push(0, 1, 0.1, 1.0);
         let mut pos = vec![Vec3::ZERO, Vec3::new(0.0, 0.0, -0.15)];
-        project_distances(&c, &mut pos, &[0.0, 2.0]);
+        project_distances(&c, &mut pos, &[0.0, 2.0], false);
         assert_eq!(pos[0], Vec3::ZERO, "the fixed end never moves");
         assert!((pos[1].length() - 0.1).abs() < 1e-6);
     }
@@ -49,7 +51,7 @@ mod tests {
         let w = [1.0, 3.0];
         let com = |p: &[Vec3]| (p[0] / w[0] + p[1] / w[1]) / (1.0 / w[0] + 1.0 / w[1]);
         let before = com(&pos);
-        project_distances(&c, &mut pos, &w);
+        project_distances(&c, &mut pos, &w, true);
         assert!((com(&pos) - before).length() < 1e-6);
         assert!((pos[0].distance(pos[1]) - 0.2).abs() < 1e-6, "stiffness 0.5 removes half the violation");
     }

@@ -37,7 +37,7 @@ pub fn project_ground(
     coefficients: &(dyn Fn(Vec3) -> (f32, f32) + Sync),
     pinned: &mut [bool],
 ) {
-    pos.par_iter_mut().zip(pinned.par_iter_mut()).with_min_len(1024).enumerate().for_each(|(i, (x, pinned))| {
+    pos.par_iter_mut().zip(pinned.par_iter_mut()).with_min_len(8192).enumerate().for_each(|(i, (x, pinned))| {
         if inv_mass[i] <= 0.0 {
             return;
         }

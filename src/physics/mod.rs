@@ -27,7 +27,7 @@ use spatial_hash::{NeighbourLists, SpatialHash};
 
 /// Supplies kinematic shape poses within a tick. `tick_fraction` runs over (0, 1]; returning `None`
 /// interpolates between the shape's pose at the start of the tick and its `target`.
-pub trait KinematicDriver {
+pub trait KinematicDriver: Send {
     fn pose_at(&mut self, shape: ShapeId, tick_fraction: f32) -> Option<Pose>;
 }
 
@@ -47,6 +47,10 @@ pub struct TickStats {
     pub contact_candidates: usize,
     /// Per shape: number of its particles touching the ground at the end of the tick.
     pub ground_contacts: Vec<u32>,
+    /// External forces ignored in the last tick because they were not finite.
+    pub rejected_forces: usize,
+    /// Kinematic poses ignored in the last tick because they were not finite (shape kept its pose).
+    pub rejected_poses: usize,
 }
 
 pub struct Solver {
@@ -146,8 +150,17 @@ impl Solver {
         if self.bound_to != (world.particles.len(), world.shapes.len()) {
             self.bind(world)?;
         }
+        // Run the tick on a pool thread: the passes below are many small parallel loops, and from a
+        // thread outside the pool each would be a cross-thread hand-off (measured: ~45 % of a
+        // T-block + robot tick); from inside, loops too small to split simply run inline.
+        rayon::scope(|_| self.run_substeps(world, driver));
+        Ok(())
+    }
+
+    fn run_substeps(&mut self, world: &mut World, driver: &mut dyn KinematicDriver) {
         let substeps = self.config.substeps;
         let h = self.config.dt / substeps as f32;
+        self.sanitise_inputs(world);
         self.tick_start.clone_from(&world.shapes.pose);
         for sub in 0..substeps {
             let fraction = (sub + 1) as f32 / substeps as f32;
@@ -156,14 +169,35 @@ impl Solver {
             if self.config.collisions.enabled {
                 self.find_contacts(world);
             }
-            for _ in 0..self.config.iterations {
-                self.solve_constraints(world);
+            for iteration in 0..self.config.iterations {
+                self.solve_constraints(world, iteration);
             }
             self.update_velocities(world, h);
         }
         self.finish_tick(world);
         world.time += self.config.dt as f64;
-        Ok(())
+    }
+
+    /// Inputs from outside the physics (visual forces, prescribed poses) must not poison the state:
+    /// a non-finite force is dropped and a non-finite target keeps the shape where it is. Both are
+    /// counted in `stats` so callers can report them.
+    fn sanitise_inputs(&mut self, world: &mut World) {
+        self.stats.rejected_forces = 0;
+        for f in &mut world.particles.external_force {
+            if !f.is_finite() {
+                *f = Vec3::ZERO;
+                self.stats.rejected_forces += 1;
+            }
+        }
+        self.stats.rejected_poses = 0;
+        let shapes = &mut world.shapes;
+        for s in 0..shapes.len() {
+            let t = shapes.target[s];
+            if shapes.kind[s] == ShapeKind::Kinematic && !(t.translation.is_finite() && t.rotation.is_finite()) {
+                shapes.target[s] = shapes.pose[s];
+                self.stats.rejected_poses += 1;
+            }
+        }
     }
 
     fn place_kinematic(&mut self, world: &mut World, driver: &mut dyn KinematicDriver, fraction: f32) {
@@ -171,9 +205,15 @@ impl Solver {
             if world.shapes.kind[s] != ShapeKind::Kinematic {
                 continue;
             }
-            let pose = driver
-                .pose_at(s as ShapeId, fraction)
-                .unwrap_or_else(|| self.tick_start[s].interpolate(&world.shapes.target[s], fraction));
+            let interpolated = || self.tick_start[s].interpolate(&world.shapes.target[s], fraction);
+            let pose = match driver.pose_at(s as ShapeId, fraction) {
+                Some(p) if p.translation.is_finite() && p.rotation.is_finite() => p,
+                Some(_) => {
+                    self.stats.rejected_poses += 1;
+                    interpolated()
+                }
+                None => interpolated(),
+            };
             world.shapes.pose[s] = pose;
             for i in world.shapes.range(s as ShapeId) {
                 self.prev[i] = world.particles.position[i];
@@ -187,7 +227,7 @@ impl Solver {
         let gravity = self.config.gravity;
         let p = &mut world.particles;
         let inv_mass = &self.inv_mass;
-        self.accel.par_iter_mut().with_min_len(2048).enumerate().for_each(|(i, a)| {
+        self.accel.par_iter_mut().with_min_len(PAR_MIN).enumerate().for_each(|(i, a)| {
             *a = if inv_mass[i] > 0.0 { gravity + p.external_force[i] * inv_mass[i] } else { Vec3::ZERO };
         });
         if !self.effects.is_empty() {
@@ -203,7 +243,7 @@ impl Solver {
             .par_iter_mut()
             .zip(p.velocity.par_iter_mut())
             .zip(self.prev.par_iter_mut())
-            .with_min_len(2048)
+            .with_min_len(PAR_MIN)
             .enumerate()
             .for_each(|(i, ((x, v), prev))| {
                 if inv_mass[i] > 0.0 {
@@ -227,7 +267,7 @@ impl Solver {
 
     /// One Jacobi sweep: each group's corrections are averaged per particle and applied before the
     /// next group, ending with shape matching so rigid shapes leave every sweep rigid.
-    fn solve_constraints(&mut self, world: &mut World) {
+    fn solve_constraints(&mut self, world: &mut World, iteration: u32) {
         let cfg = &self.config;
         let p = &mut world.particles;
         self.pinned.fill(false);
@@ -258,8 +298,11 @@ impl Solver {
             collide::apply_averaged(&mut p.position, &self.delta, &self.count, cfg.relaxation);
         }
         if !world.distance.is_empty() {
-            distance::project_distances(&world.distance, &mut p.position, &self.inv_mass);
-            self.attachments.project(&mut p.position);
+            let sweeps = cfg.distance_sweeps;
+            for sweep in 0..sweeps {
+                distance::project_distances(&world.distance, &mut p.position, &self.inv_mass, (iteration * sweeps + sweep) % 2 == 1);
+                self.attachments.project(&mut p.position);
+            }
         }
         self.match_rigid_shapes(world);
     }
@@ -312,7 +355,7 @@ impl Solver {
     fn update_velocities(&mut self, world: &mut World, h: f32) {
         let p = &mut world.particles;
         let prev = &self.prev;
-        p.velocity.par_iter_mut().zip(p.position.par_iter()).with_min_len(2048).enumerate().for_each(|(i, (v, x))| {
+        p.velocity.par_iter_mut().zip(p.position.par_iter()).with_min_len(PAR_MIN).enumerate().for_each(|(i, (v, x))| {
             *v = (*x - prev[i]) / h;
         });
     }
@@ -342,6 +385,9 @@ impl Solver {
         }
     }
 }
+
+/// Smallest number of particles a cheap per-particle loop hands to one thread.
+const PAR_MIN: usize = 8192;
 
 fn world_shape_velocity(world: &World, s: ShapeId, inv_mass: &[f32]) -> Vec3 {
     let mut mass = 0.0;

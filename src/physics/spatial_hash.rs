@@ -12,6 +12,8 @@ pub struct SpatialHash {
     cell_start: Vec<u32>,
     sorted: Vec<u32>,
     keys: Vec<u32>,
+    /// Grid cell of each particle (by particle index).
+    cells: Vec<IVec3>,
 }
 
 /// Candidate contact partners of each particle: `neighbours[offsets[i]..offsets[i + 1]]`.
@@ -49,8 +51,10 @@ impl SpatialHash {
         let size = (2 * n).next_power_of_two().max(64);
         self.inv_cell = 1.0 / cell;
         self.mask = (size - 1) as u32;
+        self.cells.clear();
+        self.cells.extend(positions.iter().map(|&p| cell_of(p, self.inv_cell)));
         self.keys.clear();
-        self.keys.extend(positions.iter().map(|&p| hash_cell(cell_of(p, self.inv_cell), self.mask)));
+        self.keys.extend(self.cells.iter().map(|&c| hash_cell(c, self.mask)));
         self.cell_start.clear();
         self.cell_start.resize(size + 1, 0);
         for &k in &self.keys {
@@ -68,24 +72,20 @@ impl SpatialHash {
         }
     }
 
-    /// Call `f` with every particle in the 27 cells around `p` (each bucket once, even when two
-    /// cells hash to the same bucket).
+    /// Call `f` with every particle in the 27 cells around `p`. Buckets are shared by cells whose
+    /// hashes collide, so candidates are filtered by their own cell: each particle is reported once.
     pub fn for_each_near(&self, p: Vec3, mut f: impl FnMut(u32)) {
         let c = cell_of(p, self.inv_cell);
-        let mut seen = [u32::MAX; 27];
-        let mut n_seen = 0;
         for dz in -1..=1 {
             for dy in -1..=1 {
                 for dx in -1..=1 {
-                    let b = hash_cell(c + IVec3::new(dx, dy, dz), self.mask);
-                    if seen[..n_seen].contains(&b) {
-                        continue;
-                    }
-                    seen[n_seen] = b;
-                    n_seen += 1;
-                    let (s, e) = (self.cell_start[b as usize] as usize, self.cell_start[b as usize + 1] as usize);
+                    let cell = c + IVec3::new(dx, dy, dz);
+                    let b = hash_cell(cell, self.mask) as usize;
+                    let (s, e) = (self.cell_start[b] as usize, self.cell_start[b + 1] as usize);
                     for &j in &self.sorted[s..e] {
-                        f(j);
+                        if self.cells[j as usize] == cell {
+                            f(j);
+                        }
                     }
                 }
             }

@@ -55,15 +55,17 @@ impl WorldBuilder {
             let i = self.world.particles.push(p, 1.0 / particle_mass, radius, shape, Phase::Dynamic, Vec3::ZERO);
             self.push_gaussian(i, radius, colour);
         }
-        for k in 0..points.len().saturating_sub(1) {
-            let (a, b) = (first + k, first + k + 1);
-            self.world.distance.push(a as u32, b as u32, points[k].distance(points[k + 1]), 1.0);
-        }
+        // Bending first, segments last: constraints are projected in order, so each sweep ends with
+        // the stiff segment lengths satisfied.
         if bending_stiffness > 0.0 {
             for k in 0..points.len().saturating_sub(2) {
                 let (a, b) = (first + k, first + k + 2);
                 self.world.distance.push(a as u32, b as u32, points[k].distance(points[k + 2]), bending_stiffness);
             }
+        }
+        for k in 0..points.len().saturating_sub(1) {
+            let (a, b) = (first + k, first + k + 1);
+            self.world.distance.push(a as u32, b as u32, points[k].distance(points[k + 1]), 1.0);
         }
         let centroid = points.iter().copied().sum::<Vec3>() / points.len().max(1) as f32;
         self.world.shapes.push(name, ShapeKind::Rope, first..self.world.particles.len(), Pose::from_translation(centroid))

@@ -64,11 +64,11 @@ pub fn tabletop() -> Scene {
     let t_rest_z = RADIUS + spacing; // three layers: centre layer one spacing above the lowest
     b.add_rigid("tblock", &t_points, RADIUS, PARTICLE_MASS, Pose::new(Vec3::new(0.0, 0.0, t_rest_z), Quat::from_rotation_z(0.35)), ORANGE);
     let box_half = Vec3::splat(0.03);
-    b.add_rigid("box", &box_lattice(box_half, spacing), RADIUS, PARTICLE_MASS, Pose::new(Vec3::new(0.22, 0.02, 0.25), Quat::from_rotation_x(0.3)), BLUE);
-    let rope_points: Vec<Vec3> = (0..40).map(|k| Vec3::new(-0.2 + k as f32 * spacing, 0.25, RADIUS)).collect();
+    b.add_rigid("box", &box_lattice(box_half, spacing), RADIUS, PARTICLE_MASS, Pose::new(Vec3::new(0.03, 0.2, 0.25), Quat::from_rotation_x(0.3)), BLUE);
+    let rope_points: Vec<Vec3> = (0..40).map(|k| Vec3::new(-0.45 + k as f32 * spacing, 0.3, RADIUS)).collect();
     let rope = b.add_rope("rope", &rope_points, RADIUS, PARTICLE_MASS, 0.2, GREEN);
     let pusher_points = cylinder_lattice(0.01, 0.06, spacing);
-    let pusher_start = Vec3::new(-0.05, -0.3, 0.035);
+    let pusher_start = Vec3::new(0.0, -0.3, 0.035);
     let pusher = b.add_kinematic("pusher", &pusher_points, RADIUS, Pose::from_translation(pusher_start), WHITE);
     let rope_end = b.world().shapes.range(rope).start;
     let grip_start = rope_points[0] - Vec3::new(spacing, 0.0, 0.0);
@@ -80,7 +80,7 @@ pub fn tabletop() -> Scene {
         (
             pusher,
             waypoints(
-                vec![(0.5, pusher_start), (3.5, pusher_start + Vec3::new(0.0, 0.36, 0.0)), (4.5, pusher_start + Vec3::new(0.0, 0.36, 0.15))],
+                vec![(0.5, pusher_start), (3.5, pusher_start + Vec3::new(0.0, 0.4, 0.0)), (4.5, pusher_start + Vec3::new(0.0, 0.4, 0.15))],
                 Quat::IDENTITY,
             ),
         ),
