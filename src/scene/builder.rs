@@ -24,7 +24,9 @@ impl WorldBuilder {
             let i = self.world.particles.push(pose.transform_point(r), inv_mass, radius, shape, phase, r);
             self.push_gaussian(i, radius, colour);
         }
-        self.world.shapes.push(name, kind, first..self.world.particles.len(), pose)
+        let s = self.world.shapes.push(name, kind, first..self.world.particles.len(), pose);
+        self.world.shapes.update_mass_properties(s, &self.world.particles);
+        s
     }
 
     fn push_gaussian(&mut self, particle: usize, radius: f32, colour: Vec3) {
@@ -68,7 +70,9 @@ impl WorldBuilder {
             self.world.distance.push(a as u32, b as u32, points[k].distance(points[k + 1]), 1.0);
         }
         let centroid = points.iter().copied().sum::<Vec3>() / points.len().max(1) as f32;
-        self.world.shapes.push(name, ShapeKind::Rope, first..self.world.particles.len(), Pose::from_translation(centroid))
+        let s = self.world.shapes.push(name, ShapeKind::Rope, first..self.world.particles.len(), Pose::from_translation(centroid));
+        self.world.shapes.update_mass_properties(s, &self.world.particles);
+        s
     }
 
     /// Tie two particles together at their current distance (e.g. a rope end to a gripper).
