@@ -32,8 +32,11 @@ pub struct PhysicsBench {
     pub scenes: Vec<SceneTiming>,
 }
 
+/// A named scene constructor.
+pub type SceneMaker = (&'static str, fn() -> Scene);
+
 /// The scenes `pegs bench physics` measures, by name.
-pub fn physics_scenes() -> Vec<(&'static str, fn() -> Scene)> {
+pub fn physics_scenes() -> Vec<SceneMaker> {
     vec![
         ("cube_field_1k", || builtin::cube_field(1_000)),
         ("cube_field_10k", || builtin::cube_field(10_000)),

@@ -22,7 +22,7 @@ fn run_demo(out: &Path) -> String {
 
 /// Last row of `object` as (x, y, z).
 fn last_position(csv: &str, object: &str) -> [f64; 3] {
-    let row = csv.lines().filter(|l| l.split(',').nth(1) == Some(object)).last().expect("object rows");
+    let row = csv.lines().rfind(|l| l.split(',').nth(1) == Some(object)).expect("object rows");
     let f: Vec<f64> = row.split(',').skip(2).take(3).map(|v| v.parse().unwrap()).collect();
     [f[0], f[1], f[2]]
 }

@@ -476,8 +476,10 @@ fn center_of_mass_offset_tips_a_balanced_plank_towards_the_heavy_side() {
         b.add_static("ridge", &ridge, R, Pose::from_translation(Vec3::new(0.0, 0.0, 0.1)), Vec3::ONE);
         let plank = b.add_rigid("plank", &box_lattice(Vec3::new(0.15, 0.02, 0.01), SPACING), R, M, Pose::from_translation(Vec3::new(0.0, 0.0, 0.1 + 2.0 * R + R)), Vec3::ONE);
         let mut w = b.build();
-        let mut config = PhysicsConfig::default();
-        config.effects = vec![Effect::CenterOfMassOffset { object: "plank".into(), offset: Vec3::new(offset_x, 0.0, 0.0) }];
+        let config = PhysicsConfig {
+            effects: vec![Effect::CenterOfMassOffset { object: "plank".into(), offset: Vec3::new(offset_x, 0.0, 0.0) }],
+            ..PhysicsConfig::default()
+        };
         let mut solver = Solver::new(config, &w).unwrap();
         run(&mut w, &mut solver, 20, |_| {});
         let pose = w.shapes.pose[plank as usize];

@@ -232,7 +232,7 @@ impl Solver {
         });
         if !self.effects.is_empty() {
             for s in 0..world.shapes.len() {
-                self.shape_velocity[s] = world_shape_velocity(world, s as ShapeId, inv_mass);
+                self.shape_velocity[s] = crate::world::mass_weighted_mean(world.shapes.range(s as ShapeId), &world.particles.velocity, inv_mass);
             }
             let state = ShapeState { mass: &self.shape_mass, velocity: &self.shape_velocity };
             self.effects.add_accelerations(world, inv_mass, &state, gravity, self.config.ground.normal, &mut self.accel);
@@ -389,14 +389,3 @@ impl Solver {
 /// Smallest number of particles a cheap per-particle loop hands to one thread.
 const PAR_MIN: usize = 8192;
 
-fn world_shape_velocity(world: &World, s: ShapeId, inv_mass: &[f32]) -> Vec3 {
-    let mut mass = 0.0;
-    let mut momentum = Vec3::ZERO;
-    for i in world.shapes.range(s) {
-        if inv_mass[i] > 0.0 {
-            mass += 1.0 / inv_mass[i];
-            momentum += world.particles.velocity[i] / inv_mass[i];
-        }
-    }
-    if mass > 0.0 { momentum / mass } else { Vec3::ZERO }
-}

@@ -17,6 +17,7 @@ impl WorldBuilder {
         Self::default()
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn add_solid(&mut self, name: &str, kind: ShapeKind, phase: Phase, body_points: &[Vec3], radius: f32, inv_mass: f32, pose: Pose, colour: Vec3) -> ShapeId {
         let shape = self.world.shapes.len() as ShapeId;
         let first = self.world.particles.len();

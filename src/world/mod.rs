@@ -102,28 +102,12 @@ impl World {
 
     /// Mass-weighted centroid of a shape's particles.
     pub fn shape_centroid(&self, shape: ShapeId) -> Vec3 {
-        let p = &self.particles;
-        let mut sum = Vec3::ZERO;
-        let mut mass = 0.0;
-        for i in self.shapes.range(shape) {
-            let m = if p.inv_mass[i] > 0.0 { 1.0 / p.inv_mass[i] } else { 1.0 };
-            sum += m * p.position[i];
-            mass += m;
-        }
-        if mass > 0.0 { sum / mass } else { Vec3::ZERO }
+        mass_weighted_mean(self.shapes.range(shape), &self.particles.position, &self.particles.inv_mass)
     }
 
     /// Mass-weighted mean velocity of a shape's particles.
     pub fn shape_velocity(&self, shape: ShapeId) -> Vec3 {
-        let p = &self.particles;
-        let mut sum = Vec3::ZERO;
-        let mut mass = 0.0;
-        for i in self.shapes.range(shape) {
-            let m = if p.inv_mass[i] > 0.0 { 1.0 / p.inv_mass[i] } else { 1.0 };
-            sum += m * p.velocity[i];
-            mass += m;
-        }
-        if mass > 0.0 { sum / mass } else { Vec3::ZERO }
+        mass_weighted_mean(self.shapes.range(shape), &self.particles.velocity, &self.particles.inv_mass)
     }
 
     /// Largest distance of a rigid shape's particles from where its current pose puts their rest
@@ -135,6 +119,19 @@ impl World {
             .map(|i| (pose.transform_point(self.particles.rest[i]) - self.particles.position[i]).length())
             .fold(0.0, f32::max)
     }
+}
+
+/// Mean of `values` over `range` weighted by mass (1 / `inv_mass`); particles without mass
+/// (kinematic, static) count with weight 1 so immovable shapes still have a centroid.
+pub fn mass_weighted_mean(range: std::ops::Range<usize>, values: &[Vec3], inv_mass: &[f32]) -> Vec3 {
+    let mut sum = Vec3::ZERO;
+    let mut weight = 0.0;
+    for i in range {
+        let m = if inv_mass[i] > 0.0 { 1.0 / inv_mass[i] } else { 1.0 };
+        sum += m * values[i];
+        weight += m;
+    }
+    if weight > 0.0 { sum / weight } else { Vec3::ZERO }
 }
 
 #[cfg(test)]
