@@ -10,6 +10,7 @@ pub mod config;
 pub mod demo;
 pub mod math;
 pub mod physics;
+pub mod render;
 pub mod scene;
 pub mod trajectory;
 pub mod world;

@@ -1,0 +1,202 @@
+//! Differentiable 3-D Gaussian splatting (spec section 3): render Gaussians into pinhole cameras
+//! and back-propagate per-pixel loss gradients to every Gaussian parameter.
+//!
+//! This module owns the renderer's data types and its semantics; `project` holds the per-Gaussian
+//! maths, `cpu` the multi-threaded CPU reference backend. It reads Gaussians, never the physics.
+//!
+//! Semantics every backend follows:
+//! - EWA projection with a `blur` added to the 2-D covariance (`project`).
+//! - A Gaussian is evaluated at a pixel iff the pixel centre lies within `cutoff_sigma`
+//!   Mahalanobis distance of its mean; tiles only accelerate this, so results do not depend on
+//!   the tiling and a region of interest renders exactly the crop of a full frame.
+//! - Front-to-back compositing in depth order (ties by Gaussian index):
+//!   `alpha = min(max_alpha, o exp(-q/2))`, skipped below `min_alpha`; compositing stops before a
+//!   Gaussian that would take the transmittance below `min_transmittance`.
+//! - Outputs: colour (plus transmittance x background), accumulated alpha `1 - T`, and depth as
+//!   the alpha-weighted sum of Gaussian depths (divide by alpha for the expected surface depth).
+
+pub mod camera;
+pub mod cpu;
+pub mod project;
+
+pub use camera::Camera;
+pub use project::{GaussianParams, ParamGrad, logit, sigmoid};
+
+use crate::world::World;
+use glam::{Vec3, Vec4};
+use serde::{Deserialize, Serialize};
+
+/// Every number of the renderer.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RenderSettings {
+    pub background: Vec3,
+    /// Added to the diagonal of every 2-D covariance, px^2 (anti-aliasing).
+    pub blur: f32,
+    /// Gaussians closer than this (m) along the optical axis are culled.
+    pub near: f32,
+    /// Mahalanobis radius beyond which a Gaussian is not evaluated.
+    pub cutoff_sigma: f32,
+    pub min_alpha: f32,
+    pub max_alpha: f32,
+    pub min_transmittance: f32,
+    /// Tile edge in pixels.
+    pub tile: u32,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            background: Vec3::ZERO,
+            blur: 0.3,
+            near: 0.01,
+            cutoff_sigma: 3.0,
+            min_alpha: 1.0 / 255.0,
+            max_alpha: 0.999,
+            min_transmittance: 1e-4,
+            tile: 16,
+        }
+    }
+}
+
+/// A pixel window `[x0, x1) x [y0, y1)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Roi {
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+}
+
+impl Roi {
+    pub fn full(camera: &Camera) -> Self {
+        Self { x0: 0, y0: 0, x1: camera.width, y1: camera.height }
+    }
+
+    /// Clamp to the image; an empty window stays empty.
+    pub fn clamped(self, camera: &Camera) -> Self {
+        let x1 = self.x1.min(camera.width);
+        let y1 = self.y1.min(camera.height);
+        Self { x0: self.x0.min(x1), y0: self.y0.min(y1), x1, y1 }
+    }
+
+    pub fn width(&self) -> u32 {
+        self.x1 - self.x0
+    }
+
+    pub fn height(&self) -> u32 {
+        self.y1 - self.y0
+    }
+
+    pub fn pixels(&self) -> usize {
+        self.width() as usize * self.height() as usize
+    }
+}
+
+/// Gaussians in the world frame in the optimiser's unconstrained form (structure of arrays).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GaussianCloud {
+    pub mean: Vec<Vec3>,
+    pub rotation: Vec<Vec4>,
+    pub log_scale: Vec<Vec3>,
+    pub opacity_logit: Vec<f32>,
+    pub colour: Vec<Vec3>,
+}
+
+impl GaussianCloud {
+    pub fn len(&self) -> usize {
+        self.mean.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.mean.is_empty()
+    }
+
+    pub fn push(&mut self, g: GaussianParams) {
+        self.mean.push(g.mean);
+        self.rotation.push(g.rotation);
+        self.log_scale.push(g.log_scale);
+        self.opacity_logit.push(g.opacity_logit);
+        self.colour.push(g.colour);
+    }
+
+    pub fn get(&self, i: usize) -> GaussianParams {
+        GaussianParams {
+            mean: self.mean[i],
+            rotation: self.rotation[i],
+            log_scale: self.log_scale[i],
+            opacity_logit: self.opacity_logit[i],
+            colour: self.colour[i],
+        }
+    }
+
+    /// The world's Gaussians at the world's current state.
+    pub fn from_world(world: &World) -> Self {
+        let (means, rotations) = world.gaussian_world_means();
+        let g = &world.gaussians;
+        let mut cloud = GaussianCloud::default();
+        for i in 0..g.len() {
+            let q = rotations[i];
+            cloud.push(GaussianParams {
+                mean: means[i],
+                rotation: Vec4::new(q.x, q.y, q.z, q.w),
+                log_scale: Vec3::new(g.scale[i].x.ln(), g.scale[i].y.ln(), g.scale[i].z.ln()),
+                opacity_logit: logit(g.opacity[i]),
+                colour: g.colour[i],
+            });
+        }
+        cloud
+    }
+}
+
+/// What a render produces over its window, row-major.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RenderOutput {
+    pub roi: Option<Roi>,
+    pub colour: Vec<Vec3>,
+    pub alpha: Vec<f32>,
+    pub depth: Vec<f32>,
+}
+
+/// Loss gradients with respect to a `RenderOutput`'s images (same window and layout).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PixelGrads {
+    pub colour: Vec<Vec3>,
+    /// Optional: empty means zero.
+    pub alpha: Vec<f32>,
+    /// Optional: empty means zero.
+    pub depth: Vec<f32>,
+}
+
+/// Loss gradients with respect to a `GaussianCloud`, one entry per Gaussian.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CloudGrads {
+    pub mean: Vec<Vec3>,
+    pub rotation: Vec<Vec4>,
+    pub log_scale: Vec<Vec3>,
+    pub opacity_logit: Vec<f32>,
+    pub colour: Vec<Vec3>,
+}
+
+impl CloudGrads {
+    pub fn zeros(n: usize) -> Self {
+        Self {
+            mean: vec![Vec3::ZERO; n],
+            rotation: vec![Vec4::ZERO; n],
+            log_scale: vec![Vec3::ZERO; n],
+            opacity_logit: vec![0.0; n],
+            colour: vec![Vec3::ZERO; n],
+        }
+    }
+
+    /// Add another camera's gradients.
+    pub fn accumulate(&mut self, other: &CloudGrads) {
+        for i in 0..self.mean.len() {
+            self.mean[i] += other.mean[i];
+            self.rotation[i] += other.rotation[i];
+            self.log_scale[i] += other.log_scale[i];
+            self.opacity_logit[i] += other.opacity_logit[i];
+            self.colour[i] += other.colour[i];
+        }
+    }
+}
