@@ -87,3 +87,176 @@ pub fn physics(config: &PhysicsConfig, ticks: usize, warmup: usize, only: &[Stri
         scenes,
     })
 }
+
+// ---- rendering ----
+
+use crate::render::cpu::CpuRenderer;
+use crate::render::{Backend, Camera, GaussianCloud, GaussianParams, PixelGrads, RenderSettings, Roi, logit};
+use glam::{Vec3, Vec4};
+
+/// The benchmark's tabletop in Gaussians: a T-block (~500), a robot arm (~10k) and the table
+/// (~10k thin disks), seen by three cameras. Returns the cloud, the cameras at `width` x `height`,
+/// and the index range of the T-block's Gaussians.
+pub fn tblock_render_scene(width: u32, height: u32) -> (GaussianCloud, Vec<Camera>, std::ops::Range<usize>) {
+    let mut cloud = GaussianCloud::default();
+    let unit = Vec4::new(0.0, 0.0, 0.0, 1.0);
+    // Table: 100 x 100 disks over 1 m^2, a faint checker so it has texture.
+    for iy in 0..100 {
+        for ix in 0..100 {
+            let shade = if (ix / 10 + iy / 10) % 2 == 0 { 0.15 } else { 0.22 };
+            cloud.push(GaussianParams {
+                mean: Vec3::new(-0.2 + ix as f32 * 0.01, -0.5 + iy as f32 * 0.01, 0.0),
+                rotation: unit,
+                log_scale: Vec3::new(0.006f32.ln(), 0.006f32.ln(), 0.0008f32.ln()),
+                opacity_logit: logit(0.95),
+                colour: Vec3::splat(shade),
+            });
+        }
+    }
+    // Robot: six links, each a cylinder of radius 4 cm sampled on its surface.
+    let links = [
+        (Vec3::new(0.0, 0.0, 0.16), Vec3::Z),
+        (Vec3::new(0.0, 0.0, 0.46), Vec3::Z),
+        (Vec3::new(0.1, 0.0, 0.7), Vec3::new(0.93, 0.0, 0.36)),
+        (Vec3::new(0.36, 0.0, 0.72), Vec3::new(0.99, 0.0, -0.13)),
+        (Vec3::new(0.5, 0.0, 0.55), Vec3::new(0.3, 0.0, -0.95)),
+        (Vec3::new(0.52, 0.0, 0.33), Vec3::NEG_Z),
+    ];
+    for (centre, axis) in links {
+        let axis = axis.normalize();
+        let side = axis.any_orthonormal_vector();
+        let other = axis.cross(side);
+        for k in 0..1667 {
+            let along = (k / 40) as f32 / 41.0 - 0.5;
+            let angle = (k % 40) as f32 / 40.0 * std::f32::consts::TAU;
+            let p = centre + axis * (0.3 * along) + 0.04 * (side * angle.cos() + other * angle.sin());
+            cloud.push(GaussianParams { mean: p, rotation: unit, log_scale: Vec3::splat(0.007f32.ln()), opacity_logit: logit(0.9), colour: Vec3::splat(0.9) });
+        }
+    }
+    // T-block: the physics lattice at 1 cm, one Gaussian per particle, 4 cm thick.
+    let start = cloud.len();
+    for p in crate::scene::t_block_lattice(0.2, 0.05, 0.04, 0.0112) {
+        cloud.push(GaussianParams {
+            mean: p + Vec3::new(0.45, 0.0, 0.02),
+            rotation: unit,
+            log_scale: Vec3::splat(0.0065f32.ln()),
+            opacity_logit: logit(0.95),
+            colour: Vec3::new(1.0, 0.45, 0.1),
+        });
+    }
+    let end = cloud.len();
+    let fx = 0.6 * width as f32;
+    let target = Vec3::new(0.45, 0.0, 0.0);
+    let cameras = vec![
+        Camera::look_at(width, height, fx, Vec3::new(1.2, -0.5, 0.7), target),
+        Camera::look_at(width, height, fx, Vec3::new(1.1, 0.6, 0.8), target),
+        Camera::look_at(width, height, fx, Vec3::new(0.3, -0.9, 0.9), target),
+    ];
+    (cloud, cameras, start..end)
+}
+
+/// The pixel window covering the projected 3-sigma extent of `range` in `camera`, plus a margin.
+pub fn footprint_roi(cloud: &GaussianCloud, range: std::ops::Range<usize>, camera: &Camera, margin: f32) -> Roi {
+    let (mut lo, mut hi) = (glam::Vec2::splat(f32::MAX), glam::Vec2::splat(f32::MIN));
+    for i in range {
+        let (u, v, z) = camera.project(cloud.mean[i]);
+        let r = 3.0 * cloud.log_scale[i].max_element().exp() * camera.fx / z.max(1e-3) + margin;
+        lo = lo.min(glam::Vec2::new(u - r, v - r));
+        hi = hi.max(glam::Vec2::new(u + r, v + r));
+    }
+    let clamp = |x: f32, max: u32| x.clamp(0.0, max as f32) as u32;
+    Roi { x0: clamp(lo.x.floor(), camera.width), y0: clamp(lo.y.floor(), camera.height), x1: clamp(hi.x.ceil(), camera.width), y1: clamp(hi.y.ceil(), camera.height) }
+}
+
+#[derive(Debug, Serialize)]
+pub struct RenderTiming {
+    pub backend: String,
+    pub resolution: [u32; 2],
+    pub window: &'static str,
+    /// Pixels rendered per camera (mean over the cameras).
+    pub pixels_per_camera: usize,
+    pub gaussians: usize,
+    pub cameras: usize,
+    /// All cameras, median over repetitions.
+    pub forward_ms: f64,
+    pub forward_backward_ms: f64,
+    pub forward_backward_ms_per_camera: f64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct RenderBench {
+    pub benchmark: &'static str,
+    pub threads: usize,
+    pub runs: Vec<RenderTiming>,
+    /// Backends that could not be opened, with the reason.
+    pub skipped: Vec<String>,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Time every case on every backend that opens (the wgpu one is skipped with a note when no
+/// adapter exists); with `save`, also write each camera's full-frame render there as PNG.
+pub fn render(repetitions: usize, save: Option<&std::path::Path>) -> Result<RenderBench> {
+    let mut runs = Vec::new();
+    let mut skipped = Vec::new();
+    let mut renderers = Vec::new();
+    for backend in [Backend::Cpu, Backend::Wgpu] {
+        match crate::render::open(backend, RenderSettings::default()) {
+            Ok(r) => renderers.push(r),
+            Err(e) => skipped.push(format!("{backend:?}: {e:#}")),
+        }
+    }
+    for (w, h) in [(640u32, 360u32), (320, 180)] {
+        let (cloud, cameras, block) = tblock_render_scene(w, h);
+        if let Some(dir) = save {
+            std::fs::create_dir_all(dir)?;
+            let mut r = CpuRenderer::new(RenderSettings::default());
+            for (k, c) in cameras.iter().enumerate() {
+                r.forward(&cloud, c, Roi::full(c)).save_png(&dir.join(format!("tblock_{w}x{h}_cam{k}.png")))?;
+            }
+        }
+        for window in ["full", "roi"] {
+            let rois: Vec<Roi> = cameras
+                .iter()
+                .map(|c| if window == "full" { Roi::full(c) } else { footprint_roi(&cloud, block.clone(), c, 8.0) })
+                .collect();
+          for renderer in renderers.iter_mut() {
+            let (mut fwd, mut both) = (Vec::new(), Vec::new());
+            // One untimed pass: pipelines compile and buffers grow on first use.
+            for (c, roi) in cameras.iter().zip(&rois) {
+                renderer.forward(&cloud, c, *roi)?;
+            }
+            for _ in 0..repetitions.max(1) {
+                let t = Instant::now();
+                for (c, roi) in cameras.iter().zip(&rois) {
+                    renderer.forward(&cloud, c, *roi)?;
+                }
+                fwd.push(t.elapsed().as_secs_f64() * 1e3);
+                let t = Instant::now();
+                for (c, roi) in cameras.iter().zip(&rois) {
+                    let out = renderer.forward(&cloud, c, *roi)?;
+                    let grads = PixelGrads { colour: out.colour.iter().map(|c| *c - Vec3::splat(0.5)).collect(), ..Default::default() };
+                    renderer.backward(&cloud, &grads)?;
+                }
+                both.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            let forward_backward_ms = median(both);
+            runs.push(RenderTiming {
+                backend: renderer.name(),
+                resolution: [w, h],
+                window,
+                pixels_per_camera: rois.iter().map(|r| r.pixels()).sum::<usize>() / rois.len(),
+                gaussians: cloud.len(),
+                cameras: cameras.len(),
+                forward_ms: median(fwd),
+                forward_backward_ms,
+                forward_backward_ms_per_camera: forward_backward_ms / cameras.len() as f64,
+            });
+          }
+        }
+    }
+    Ok(RenderBench { benchmark: "render", threads: rayon::current_num_threads(), runs, skipped })
+}

@@ -51,6 +51,18 @@ enum BenchTarget {
         #[arg(long)]
         scene: Vec<String>,
     },
+    /// Time forward and forward+backward rendering of the 20k-Gaussian T-block scene into three
+    /// cameras at 640x360 and 320x180, full frame and region of interest, per backend.
+    Render {
+        #[arg(long)]
+        json: bool,
+        /// Timed repetitions per case.
+        #[arg(long, default_value_t = 5)]
+        repetitions: usize,
+        /// Also write the full-frame renders of each camera as PNG into this directory.
+        #[arg(long)]
+        save: Option<PathBuf>,
+    },
 }
 
 fn load_config(path: &Option<PathBuf>) -> Result<Config> {
@@ -88,6 +100,19 @@ fn main() -> Result<()> {
                     println!(
                         "{:<16} {:>6} dynamic {:>6} kinematic: {:8.2} ms/tick (median of {})",
                         s.scene, s.dynamic_particles, s.kinematic_particles, s.ms_per_tick_median, s.ticks
+                    );
+                }
+            }
+        }
+        Command::Bench { what: BenchTarget::Render { json, repetitions, save } } => {
+            let report = pegs::bench::render(repetitions, save.as_deref())?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                for r in &report.runs {
+                    println!(
+                        "{:<4} {}x{} {:<4} {:>7} px/cam: forward {:8.2} ms, forward+backward {:8.2} ms ({:.2} ms per camera)",
+                        r.backend, r.resolution[0], r.resolution[1], r.window, r.pixels_per_camera, r.forward_ms, r.forward_backward_ms, r.forward_backward_ms_per_camera
                     );
                 }
             }

@@ -1,10 +1,23 @@
-//! Renderer checks: gradients against finite differences, analytic footprints, compositing order,
-//! the cut-offs, and region-of-interest rendering against crops of full frames.
+//! Renderer checks, each on every backend (CPU reference and wgpu): gradients against finite
+//! differences, analytic footprints, compositing order, the cut-offs, region-of-interest rendering
+//! against crops of full frames, determinism, and CPU/wgpu parity on a 20k-Gaussian scene.
+//!
+//! The wgpu backend must be present (CI installs Mesa's lavapipe); set PEGS_SKIP_GPU=1 to run the
+//! CPU half only on a machine that has no Vulkan driver at all.
 
 use glam::{Vec3, Vec4};
 use pegs::math::Pose;
-use pegs::render::cpu::CpuRenderer;
-use pegs::render::{Camera, GaussianCloud, GaussianParams, PixelGrads, RenderOutput, RenderSettings, Roi, logit};
+use pegs::render::{Backend, Camera, GaussianCloud, GaussianParams, PixelGrads, RenderOutput, RenderSettings, Renderer, Roi, logit, open};
+
+fn backends(settings: &RenderSettings) -> Vec<Box<dyn Renderer + Send>> {
+    let mut out = vec![open(Backend::Cpu, settings.clone()).unwrap()];
+    match open(Backend::Wgpu, settings.clone()) {
+        Ok(gpu) => out.push(gpu),
+        Err(e) if std::env::var("PEGS_SKIP_GPU").as_deref() == Ok("1") => eprintln!("skipping wgpu: {e:#}"),
+        Err(e) => panic!("wgpu backend unavailable ({e:#}); install mesa-vulkan-drivers or set PEGS_SKIP_GPU=1"),
+    }
+    out
+}
 
 /// Deterministic pseudo-random numbers in [0, 1).
 struct Rng(u64);
@@ -74,23 +87,22 @@ impl Loss {
 
 #[test]
 fn every_gradient_matches_finite_differences_on_small_random_scenes() {
+  for mut r in backends(&smooth_settings()) {
+    let backend = r.name();
     let mut rng = Rng(7);
     let (w, h) = (40, 30);
     for (scene, cam) in cameras(w, h).iter().enumerate() {
         let cloud = random_cloud(10, &mut rng, (0.3, 0.8));
         let loss = Loss::random((w * h) as usize, &mut rng);
-        let mut r = CpuRenderer::new(smooth_settings());
-        let out = r.forward(&cloud, cam, Roi::full(cam));
+        let out = r.forward(&cloud, cam, Roi::full(cam)).unwrap();
         assert!(out.alpha.iter().cloned().fold(0.0, f32::max) > 0.3, "scene {scene} must be visible");
         let grads = r.backward(&cloud, &loss.grads()).unwrap();
-        let eval = |c: &GaussianCloud| {
-            let mut r = CpuRenderer::new(smooth_settings());
-            loss.value(&r.forward(c, cam, Roi::full(cam)))
-        };
+        let mut eval = |c: &GaussianCloud| loss.value(&r.forward(c, cam, Roi::full(cam)).unwrap());
         // (group, analytic, numeric) for every scalar parameter of every Gaussian.
         let mut rows: Vec<(&str, f32, f32)> = Vec::new();
         for i in 0..cloud.len() {
             let mut fd = |group: &'static str, analytic: f32, h: f32, set: &dyn Fn(&mut GaussianCloud, f32)| {
+                let eval = &mut eval;
                 let mut c = cloud.clone();
                 set(&mut c, h);
                 let up = eval(&c);
@@ -117,15 +129,16 @@ fn every_gradient_matches_finite_differences_on_small_random_scenes() {
             for (_, analytic, numeric) in &of {
                 if numeric.abs() > 0.02 * scale {
                     let rel = (analytic - numeric).abs() / numeric.abs();
-                    assert!(rel < 0.01, "scene {scene} {group}: analytic {analytic} vs numeric {numeric} ({:.2} %)", rel * 100.0);
+                    assert!(rel < 0.01, "{backend} scene {scene} {group}: analytic {analytic} vs numeric {numeric} ({:.2} %)", rel * 100.0);
                     checked += 1;
                 } else {
-                    assert!((analytic - numeric).abs() < 0.005 * scale, "scene {scene} {group}: small gradient {analytic} vs {numeric}");
+                    assert!((analytic - numeric).abs() < 0.005 * scale, "{backend} scene {scene} {group}: small gradient {analytic} vs {numeric}");
                 }
             }
-            assert!(checked >= 3, "{group}: too few gradients large enough to check");
+            assert!(checked >= 3, "{backend} {group}: too few gradients large enough to check");
         }
     }
+  }
 }
 
 #[test]
@@ -142,10 +155,12 @@ fn single_isotropic_gaussian_renders_the_expected_footprint_and_peak_alpha() {
         opacity_logit: logit(opacity),
         colour: Vec3::new(1.0, 0.5, 0.25),
     });
-    let out = CpuRenderer::new(s.clone()).forward(&cloud, &cam, Roi::full(&cam));
+  for mut r in backends(&s) {
+    let backend = r.name();
+    let out = r.forward(&cloud, &cam, Roi::full(&cam)).unwrap();
     let var = (200.0 * sigma / depth).powi(2) + s.blur;
     let peak = out.alpha[40 * 101 + 50];
-    assert!((peak - opacity).abs() < 1e-5, "peak alpha {peak}");
+    assert!((peak - opacity).abs() < 1e-5, "{backend}: peak alpha {peak}");
     let mut lit = 0;
     for y in 0..81 {
         for x in 0..101 {
@@ -153,7 +168,7 @@ fn single_isotropic_gaussian_renders_the_expected_footprint_and_peak_alpha() {
             let a = opacity * (-0.5 * r2).exp();
             let want = if r2 <= 9.0 && a >= s.min_alpha { a } else { 0.0 };
             let got = out.alpha[y * 101 + x];
-            assert!((got - want).abs() < 1e-5, "pixel ({x}, {y}): {got} vs {want}");
+            assert!((got - want).abs() < 1e-5, "{backend}: pixel ({x}, {y}): {got} vs {want}");
             lit += (want > 0.0) as usize;
             // Colour is alpha times the Gaussian's colour on a black background; depth alpha-weighted.
             assert!((out.colour[y * 101 + x] - want * Vec3::new(1.0, 0.5, 0.25)).length() < 1e-5);
@@ -163,6 +178,7 @@ fn single_isotropic_gaussian_renders_the_expected_footprint_and_peak_alpha() {
     // The footprint is the 3-sigma disc: pi * 9 * var pixels.
     let disc = std::f32::consts::PI * 9.0 * var;
     assert!((lit as f32 - disc).abs() < 0.05 * disc, "lit {lit} pixels, disc {disc}");
+  }
 }
 
 fn facing(depth: f32, colour: Vec3, opacity: f32) -> GaussianParams {
@@ -175,10 +191,19 @@ fn facing(depth: f32, colour: Vec3, opacity: f32) -> GaussianParams {
     }
 }
 
+/// The centre pixel's colour and alpha from every backend (they must agree).
 fn centre_pixel(cloud: &GaussianCloud, s: &RenderSettings) -> (Vec3, f32) {
     let cam = Camera { width: 21, height: 21, fx: 100.0, fy: 100.0, cx: 10.5, cy: 10.5, world_to_camera: Pose::IDENTITY };
-    let out = CpuRenderer::new(s.clone()).forward(cloud, &cam, Roi::full(&cam));
-    (out.colour[10 * 21 + 10], out.alpha[10 * 21 + 10])
+    let mut first: Option<(Vec3, f32)> = None;
+    for mut r in backends(s) {
+        let out = r.forward(cloud, &cam, Roi::full(&cam)).unwrap();
+        let px = (out.colour[10 * 21 + 10], out.alpha[10 * 21 + 10]);
+        if let Some(f) = first {
+            assert!((f.0 - px.0).abs().max_element() < 1e-6 && (f.1 - px.1).abs() < 1e-6, "{} disagrees: {px:?} vs {f:?}", r.name());
+        }
+        first = Some(px);
+    }
+    first.unwrap()
 }
 
 #[test]
@@ -228,7 +253,8 @@ fn alpha_and_transmittance_cut_offs_behave_as_specified() {
     let cam = Camera { width: 41, height: 1, fx: 100.0, fy: 100.0, cx: 0.5, cy: 0.5, world_to_camera: Pose::IDENTITY };
     let mut g = facing(1.0, Vec3::ONE, 1.0 - 1e-6);
     g.log_scale = Vec3::splat((0.05f32).ln()); // 5 px std-dev at 1 m, fx 100
-    let out = CpuRenderer::new(s.clone()).forward(&one(g), &cam, Roi::full(&cam));
+  for mut r in backends(&s) {
+    let out = r.forward(&one(g), &cam, Roi::full(&cam)).unwrap();
     let sd = (25.0f32 + s.blur).sqrt();
     for x in 0..41 {
         let d = x as f32 / sd;
@@ -239,6 +265,7 @@ fn alpha_and_transmittance_cut_offs_behave_as_specified() {
             assert!(a > 0.01, "pixel {x} at {d} sigma should be lit: {a}");
         }
     }
+  }
 }
 
 fn one(g: GaussianParams) -> GaussianCloud {
@@ -249,15 +276,14 @@ fn one(g: GaussianParams) -> GaussianCloud {
 
 #[test]
 fn region_of_interest_equals_the_crop_of_a_full_render_including_gradients() {
+  let s = RenderSettings { background: Vec3::new(0.3, 0.1, 0.2), ..RenderSettings::default() };
+  for (mut full_r, mut roi_r) in backends(&s).into_iter().zip(backends(&s)) {
     let mut rng = Rng(99);
     let cloud = random_cloud(400, &mut rng, (0.2, 0.99));
     let cam = cameras(96, 64)[0];
-    let s = RenderSettings { background: Vec3::new(0.3, 0.1, 0.2), ..RenderSettings::default() };
-    let mut full_r = CpuRenderer::new(s.clone());
-    let full = full_r.forward(&cloud, &cam, Roi::full(&cam));
+    let full = full_r.forward(&cloud, &cam, Roi::full(&cam)).unwrap();
     let roi = Roi { x0: 13, y0: 7, x1: 61, y1: 50 };
-    let mut roi_r = CpuRenderer::new(s.clone());
-    let part = roi_r.forward(&cloud, &cam, roi);
+    let part = roi_r.forward(&cloud, &cam, roi).unwrap();
     assert_eq!(part.colour.len(), roi.pixels());
     let mut covered = 0;
     for y in roi.y0..roi.y1 {
@@ -289,9 +315,10 @@ fn region_of_interest_equals_the_crop_of_a_full_render_including_gradients() {
     let scale = g_full.mean.iter().map(|v| v.abs().max_element()).fold(0.0f32, f32::max);
     assert!(scale > 0.0);
     for i in 0..cloud.len() {
-        assert!((g_full.mean[i] - g_roi.mean[i]).abs().max_element() <= 1e-6 * scale, "Gaussian {i}");
+        assert!((g_full.mean[i] - g_roi.mean[i]).abs().max_element() <= 1e-6 * scale, "{} Gaussian {i}", full_r.name());
         assert!((g_full.opacity_logit[i] - g_roi.opacity_logit[i]).abs() <= 1e-6 * scale.max(1.0));
     }
+  }
 }
 
 #[test]
@@ -300,15 +327,15 @@ fn rendering_and_gradients_are_deterministic() {
     let cloud = random_cloud(2000, &mut rng, (0.2, 0.99));
     let cam = cameras(128, 96)[1];
     let loss = Loss::random(128 * 96, &mut rng);
-    let run = || {
-        let mut r = CpuRenderer::new(RenderSettings::default());
-        let out = r.forward(&cloud, &cam, Roi::full(&cam));
-        (out, r.backward(&cloud, &loss.grads()).unwrap())
-    };
-    let (a, ga) = run();
-    let (b, gb) = run();
-    assert_eq!(a, b);
-    assert_eq!(ga, gb);
+    for mut r in backends(&RenderSettings::default()) {
+        let mut run = || {
+            let out = r.forward(&cloud, &cam, Roi::full(&cam)).unwrap();
+            (out, r.backward(&cloud, &loss.grads()).unwrap())
+        };
+        let (a, ga) = run();
+        let (b, gb) = run();
+        assert!(a == b && ga == gb, "two identical renders differ");
+    }
 }
 
 #[test]
@@ -316,8 +343,49 @@ fn backward_rejects_mismatched_inputs() {
     let mut rng = Rng(5);
     let cloud = random_cloud(5, &mut rng, (0.3, 0.6));
     let cam = cameras(16, 16)[0];
-    let mut r = CpuRenderer::new(RenderSettings::default());
-    assert!(r.backward(&cloud, &PixelGrads::default()).is_err(), "backward before forward");
-    r.forward(&cloud, &cam, Roi::full(&cam));
-    assert!(r.backward(&cloud, &PixelGrads { colour: vec![Vec3::ZERO; 10], ..Default::default() }).is_err());
+    for mut r in backends(&RenderSettings::default()) {
+        assert!(r.backward(&cloud, &PixelGrads::default()).is_err(), "backward before forward");
+        r.forward(&cloud, &cam, Roi::full(&cam)).unwrap();
+        assert!(r.backward(&cloud, &PixelGrads { colour: vec![Vec3::ZERO; 10], ..Default::default() }).is_err());
+        let fewer = random_cloud(4, &mut rng, (0.3, 0.6));
+        assert!(r.backward(&fewer, &PixelGrads { colour: vec![Vec3::ZERO; 256], ..Default::default() }).is_err());
+    }
+}
+
+#[test]
+fn cpu_and_wgpu_agree_on_a_20k_gaussian_three_camera_scene() {
+    let s = RenderSettings::default();
+    let mut renderers = backends(&s);
+    if renderers.len() < 2 {
+        return; // PEGS_SKIP_GPU=1: nothing to compare
+    }
+    let (cloud, cams, _) = pegs::bench::tblock_render_scene(320, 180);
+    assert!(cloud.len() >= 10_000 && cams.len() == 3);
+    for cam in &cams {
+        let outs: Vec<RenderOutput> = renderers.iter_mut().map(|r| r.forward(&cloud, cam, Roi::full(cam)).unwrap()).collect();
+        let colour_diff = outs[0].colour.iter().zip(&outs[1].colour).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0f32, f32::max);
+        let alpha_diff = outs[0].alpha.iter().zip(&outs[1].alpha).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        eprintln!("max |colour_cpu - colour_wgpu| = {colour_diff:.2e}, alpha {alpha_diff:.2e}");
+        assert!(colour_diff < 1e-3 && alpha_diff < 1e-3, "images differ: colour {colour_diff}, alpha {alpha_diff}");
+        // A photometric loss against a shifted copy of the image, as the correction step uses.
+        let target: Vec<Vec3> = outs[0].colour.iter().map(|c| *c * 0.8 + Vec3::splat(0.05)).collect();
+        let d = PixelGrads { colour: outs[0].colour.iter().zip(&target).map(|(c, t)| 2.0 * (*c - *t)).collect(), ..Default::default() };
+        let grads: Vec<_> = renderers.iter_mut().map(|r| r.backward(&cloud, &d).unwrap()).collect();
+        let worst = |f: &dyn Fn(&pegs::render::CloudGrads, usize) -> Vec4| {
+            let scale = (0..cloud.len()).map(|i| f(&grads[0], i).abs().max_element()).fold(0.0f32, f32::max);
+            let diff = (0..cloud.len()).map(|i| (f(&grads[0], i) - f(&grads[1], i)).abs().max_element()).fold(0.0f32, f32::max);
+            (diff, scale)
+        };
+        for (name, (diff, scale)) in [
+            ("mean", worst(&|g, i| g.mean[i].extend(0.0))),
+            ("rotation", worst(&|g, i| g.rotation[i])),
+            ("log_scale", worst(&|g, i| g.log_scale[i].extend(0.0))),
+            ("opacity", worst(&|g, i| Vec4::new(g.opacity_logit[i], 0.0, 0.0, 0.0))),
+            ("colour", worst(&|g, i| g.colour[i].extend(0.0))),
+        ] {
+            eprintln!("{name}: max |cpu - wgpu| {diff:.2e} of max |grad| {scale:.2e}");
+            assert!(scale > 0.0, "{name}: no gradient");
+            assert!(diff < 1e-3 * scale, "{name} gradients differ: {diff} vs scale {scale}");
+        }
+    }
 }

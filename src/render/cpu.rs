@@ -3,11 +3,24 @@
 //! walks each pixel's list back to front and writes per-(tile, Gaussian) partial gradients into
 //! disjoint slices, which are then summed in a fixed order. Deterministic, no atomics.
 
+// Comparisons are written `!(x <= limit)` on purpose: NaN must fail them.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use super::project::{self, ParamGrad, Projected, ProjectedGrad};
 use super::{Camera, CloudGrads, GaussianCloud, PixelGrads, RenderOutput, RenderSettings, Roi};
 use anyhow::{Result, bail};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+
+/// Depth as a sort key: the f32 bits (monotonic for positive depths) with the low 8 mantissa bits
+/// dropped, so depths within 2^-15 relative count as equal and fall back to index order. Without
+/// it, Gaussians at equal depth in exact arithmetic (lattices) were ordered by rounding noise,
+/// which differs between CPU and GPU arithmetic.
+pub fn depth_key(depth: f32) -> u32 {
+    depth.to_bits() & DEPTH_KEY_MASK
+}
+
+pub const DEPTH_KEY_MASK: u32 = 0xFFFF_FF00;
 
 /// Partial gradient of one Gaussian from the pixels of one tile.
 #[derive(Clone, Copy, Default)]
@@ -119,7 +132,7 @@ impl CpuRenderer {
                 for ty in ty0..=ty1 {
                     for tx in tx0..=tx1 {
                         let t = (ty * tiles.0 + tx) as u64;
-                        keys.push(((t << 32) | p.depth.to_bits() as u64, i as u32));
+                        keys.push(((t << 32) | depth_key(p.depth) as u64, i as u32));
                     }
                 }
             }

@@ -9,7 +9,8 @@
 //! - A Gaussian is evaluated at a pixel iff the pixel centre lies within `cutoff_sigma`
 //!   Mahalanobis distance of its mean; tiles only accelerate this, so results do not depend on
 //!   the tiling and a region of interest renders exactly the crop of a full frame.
-//! - Front-to-back compositing in depth order (ties by Gaussian index):
+//! - Front-to-back compositing in depth order (depths within 2^-15 relative count as ties, broken
+//!   by Gaussian index, so every backend orders alike):
 //!   `alpha = min(max_alpha, o exp(-q/2))`, skipped below `min_alpha`; compositing stops before a
 //!   Gaussian that would take the transmittance below `min_transmittance`.
 //! - Outputs: colour (plus transmittance x background), accumulated alpha `1 - T`, and depth as
@@ -17,14 +18,70 @@
 
 pub mod camera;
 pub mod cpu;
+pub mod gpu;
 pub mod project;
 
 pub use camera::Camera;
 pub use project::{GaussianParams, ParamGrad, logit, sigmoid};
 
 use crate::world::World;
+use anyhow::Result;
 use glam::{Vec3, Vec4};
 use serde::{Deserialize, Serialize};
+
+/// A rendering backend: forward over a window, then backward for the same cloud.
+pub trait Renderer {
+    fn name(&self) -> String;
+    fn settings(&self) -> &RenderSettings;
+    fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi) -> Result<RenderOutput>;
+    fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads>;
+}
+
+/// Which backend renders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Backend {
+    Cpu,
+    Wgpu,
+}
+
+/// Open a renderer of the given backend.
+pub fn open(backend: Backend, settings: RenderSettings) -> Result<Box<dyn Renderer + Send>> {
+    Ok(match backend {
+        Backend::Cpu => Box::new(cpu::CpuRenderer::new(settings)),
+        Backend::Wgpu => Box::new(gpu::GpuRenderer::new(settings)?),
+    })
+}
+
+impl Renderer for cpu::CpuRenderer {
+    fn name(&self) -> String {
+        "cpu".into()
+    }
+    fn settings(&self) -> &RenderSettings {
+        &self.settings
+    }
+    fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi) -> Result<RenderOutput> {
+        Ok(cpu::CpuRenderer::forward(self, cloud, camera, roi))
+    }
+    fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads> {
+        cpu::CpuRenderer::backward(self, cloud, d_image)
+    }
+}
+
+impl Renderer for gpu::GpuRenderer {
+    fn name(&self) -> String {
+        format!("wgpu: {}", self.adapter())
+    }
+    fn settings(&self) -> &RenderSettings {
+        &self.settings
+    }
+    fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi) -> Result<RenderOutput> {
+        gpu::GpuRenderer::forward(self, cloud, camera, roi)
+    }
+    fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads> {
+        gpu::GpuRenderer::backward(self, cloud, d_image)
+    }
+}
 
 /// Every number of the renderer.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -156,6 +213,20 @@ pub struct RenderOutput {
     pub colour: Vec<Vec3>,
     pub alpha: Vec<f32>,
     pub depth: Vec<f32>,
+}
+
+impl RenderOutput {
+    /// Write the colour image as an 8-bit sRGB-less PNG (values clamped to [0, 1]).
+    pub fn save_png(&self, path: &std::path::Path) -> anyhow::Result<()> {
+        use anyhow::Context;
+        let roi = self.roi.context("render output without a window")?;
+        let mut img = image::RgbImage::new(roi.width(), roi.height());
+        for (i, px) in img.pixels_mut().enumerate() {
+            let c = (self.colour[i].clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round();
+            *px = image::Rgb([c.x as u8, c.y as u8, c.z as u8]);
+        }
+        img.save(path).with_context(|| format!("cannot write {}", path.display()))
+    }
 }
 
 /// Loss gradients with respect to a `RenderOutput`'s images (same window and layout).

@@ -5,6 +5,9 @@
 //! blur I` with the perspective Jacobian `J` at `t` (its x/z, y/z clamped to 1.3 x the field of view
 //! as in the reference rasteriser); conic = inverse of `Sigma2`; opacity = sigmoid(logit).
 
+// Comparisons are written `!(x <= limit)` on purpose: NaN must fail them.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use super::{Camera, RenderSettings};
 use glam::{Mat3, Vec2, Vec3, Vec4};
 

@@ -1,0 +1,85 @@
+// Project every Gaussian (EWA), find its tile rectangle, count Gaussians per tile.
+
+fn sigmoid(x: f32) -> f32 {
+    return 1.0 / (1.0 + exp(-x));
+}
+
+fn rotation_matrix(q: vec4<f32>) -> mat3x3<f32> {
+    let x = q.x; let y = q.y; let z = q.z; let w = q.w;
+    return mat3x3<f32>(
+        vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
+        vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
+        vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
+    );
+}
+
+@compute @workgroup_size(256)
+fn project(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if (i >= params.size.z) {
+        return;
+    }
+    var out: Projected;
+    out.colour_valid = vec4<f32>(0.0);
+    rects[i] = vec4<u32>(0u);
+    let g = gaussians[i];
+    let w = mat3x3<f32>(params.rot0.xyz, params.rot1.xyz, params.rot2.xyz);
+    let t = w * g.mean_opacity.xyz + params.trans.xyz;
+    let fx = params.intr.x; let fy = params.intr.y;
+    if (!(t.z >= params.cut.x)) {
+        projected[i] = out;
+        return;
+    }
+    let lim = vec2<f32>(1.3 * f32(params.size.x) / (2.0 * fx), 1.3 * f32(params.size.y) / (2.0 * fy));
+    let u = clamp(vec2<f32>(t.x / t.z, t.y / t.z), -lim, lim);
+    let j0 = vec3<f32>(fx / t.z, 0.0, -fx * u.x / t.z);
+    let j1 = vec3<f32>(0.0, fy / t.z, -fy * u.y / t.z);
+    let qn = length(g.rotation);
+    if (!(qn > 1e-12)) {
+        projected[i] = out;
+        return;
+    }
+    let r = rotation_matrix(g.rotation / qn);
+    let d = exp(2.0 * g.log_scale.xyz);
+    let sigma = r * mat3x3<f32>(vec3<f32>(d.x, 0.0, 0.0), vec3<f32>(0.0, d.y, 0.0), vec3<f32>(0.0, 0.0, d.z)) * transpose(r);
+    let m = w * sigma * transpose(w);
+    let blur = params.background.w;
+    let a = dot(j0, m * j0) + blur;
+    let b = dot(j0, m * j1);
+    let c = dot(j1, m * j1) + blur;
+    let det = a * c - b * b;
+    if (!(det > 0.0)) {
+        projected[i] = out;
+        return;
+    }
+    let mid = 0.5 * (a + c);
+    let lambda_max = mid + sqrt(max(mid * mid - det, 0.0));
+    let radius = params.cut.y * sqrt(lambda_max);
+    let mean = vec2<f32>(fx * t.x / t.z + params.intr.z, fy * t.y / t.z + params.intr.w);
+    out.mean_depth_radius = vec4<f32>(mean, t.z, radius);
+    out.conic_opacity = vec4<f32>(c / det, -b / det, a / det, sigmoid(g.mean_opacity.w));
+    out.colour_valid = vec4<f32>(g.colour.xyz, 1.0);
+    projected[i] = out;
+
+    // Pixels whose centre lies within the radius, clipped to the window, then their tiles.
+    let lo = ceil(mean - vec2<f32>(radius) - vec2<f32>(0.5));
+    let hi = floor(mean + vec2<f32>(radius) - vec2<f32>(0.5));
+    let x0 = max(lo.x, f32(params.roi.x));
+    let y0 = max(lo.y, f32(params.roi.y));
+    let x1 = min(hi.x, f32(params.roi.z) - 1.0);
+    let y1 = min(hi.y, f32(params.roi.w) - 1.0);
+    if (!(x0 <= x1 && y0 <= y1)) {
+        return;
+    }
+    let tile = params.size.w;
+    let tx0 = u32(x0) / tile - params.tiles.x;
+    let tx1 = u32(x1) / tile - params.tiles.x + 1u;
+    let ty0 = u32(y0) / tile - params.tiles.y;
+    let ty1 = u32(y1) / tile - params.tiles.y + 1u;
+    rects[i] = vec4<u32>(tx0, ty0, tx1, ty1);
+    for (var ty = ty0; ty < ty1; ty++) {
+        for (var tx = tx0; tx < tx1; tx++) {
+            atomicAdd(&tile_counts[ty * params.tiles.z + tx], 1u);
+        }
+    }
+}
