@@ -133,9 +133,9 @@ pub fn tblock_render_scene(width: u32, height: u32) -> (GaussianCloud, Vec<Camer
             cloud.push(GaussianParams { mean: p, rotation: unit, log_scale: Vec3::splat(0.007f32.ln()), opacity_logit: logit(0.9), colour: Vec3::splat(0.9) });
         }
     }
-    // T-block: the physics lattice at 1 cm, one Gaussian per particle, 4 cm thick.
+    // T-block: a 4-layer lattice at 11.2 mm, one Gaussian per point (480).
     let start = cloud.len();
-    for p in crate::scene::t_block_lattice(0.2, 0.05, 0.04, 0.0112) {
+    for p in crate::scene::t_block_lattice(0.2, 0.05, 0.045, 0.0112) {
         cloud.push(GaussianParams {
             mean: p + Vec3::new(0.45, 0.0, 0.02),
             rotation: unit,

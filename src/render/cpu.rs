@@ -105,8 +105,21 @@ impl CpuRenderer {
     pub fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi) -> RenderOutput {
         let s = &self.settings;
         let roi = roi.clamped(camera);
-        let projected: Vec<Option<Projected>> =
-            (0..cloud.len()).into_par_iter().with_min_len(256).map(|i| project::project(&cloud.get(i), camera, s)).collect();
+        // Gaussians whose conservative footprint misses the window are culled before the full
+        // projection: identical output, and a small window costs little more than its pixels.
+        let (lo, hi) = (Vec2::new(roi.x0 as f32, roi.y0 as f32), Vec2::new(roi.x1 as f32, roi.y1 as f32));
+        let projected: Vec<Option<Projected>> = (0..cloud.len())
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|i| {
+                let g = cloud.get(i);
+                let (c, r) = project::footprint_bound(&g, camera, s)?;
+                if c.x + r < lo.x || c.y + r < lo.y || c.x - r > hi.x || c.y - r > hi.y {
+                    return None;
+                }
+                project::project(&g, camera, s)
+            })
+            .collect();
         let tile = s.tile.max(1);
         let tile_origin = (roi.x0 / tile, roi.y0 / tile);
         let tiles = if roi.pixels() == 0 {
@@ -240,7 +253,9 @@ impl CpuRenderer {
         });
         // Sum partials per Gaussian in list order (fixed), then chain through the projection.
         let mut per_gaussian = vec![ProjectedGrad::default(); cloud.len()];
+        let mut touched = vec![false; cloud.len()];
         for (k, &gi) in f.order.iter().enumerate() {
+            touched[gi as usize] = true;
             let p = &partials[k];
             let g = &mut per_gaussian[gi as usize];
             g.mean += p.mean;
@@ -252,7 +267,7 @@ impl CpuRenderer {
         let grads: Vec<ParamGrad> = (0..cloud.len())
             .into_par_iter()
             .with_min_len(256)
-            .map(|i| if f.projected[i].is_some() { project::project_backward(&cloud.get(i), &f.camera, s, &per_gaussian[i]) } else { ParamGrad::default() })
+            .map(|i| if touched[i] { project::project_backward(&cloud.get(i), &f.camera, s, &per_gaussian[i]) } else { ParamGrad::default() })
             .collect();
         let mut out = CloudGrads::zeros(cloud.len());
         for (i, g) in grads.into_iter().enumerate() {

@@ -130,6 +130,23 @@ fn forward_intermediate(g: &GaussianParams, cam: &Camera, s: &RenderSettings) ->
     Some(Intermediate { t, u, clamped, j0, j1, m, w, r, q, q_norm, d, abc })
 }
 
+/// A cheap conservative bound of `project`'s footprint: image-plane centre and a radius at least
+/// as large as `Projected::radius` (from sqrt(lambda_max) <= |J|_F * max scale, blur added), or
+/// `None` when the Gaussian is culled anyway. Lets a window skip most of the scene cheaply.
+pub fn footprint_bound(g: &GaussianParams, cam: &Camera, s: &RenderSettings) -> Option<(Vec2, f32)> {
+    let t = cam.world_to_camera.rotation * g.mean + cam.world_to_camera.translation;
+    if !(t.z >= s.near) || !t.is_finite() {
+        return None;
+    }
+    let lim = Vec2::new(1.3 * cam.width as f32 / (2.0 * cam.fx), 1.3 * cam.height as f32 / (2.0 * cam.fy));
+    let u = Vec2::new(t.x / t.z, t.y / t.z).clamp(-lim, lim);
+    let jf2 = (cam.fx * cam.fx * (1.0 + u.x * u.x) + cam.fy * cam.fy * (1.0 + u.y * u.y)) / (t.z * t.z);
+    let s_max = g.log_scale.max_element().exp();
+    let radius = s.cutoff_sigma * (jf2 * s_max * s_max + s.blur).sqrt() * 1.001 + 1e-3;
+    let centre = Vec2::new(cam.fx * t.x / t.z + cam.cx, cam.fy * t.y / t.z + cam.cy);
+    Some((centre, radius))
+}
+
 /// Project one Gaussian; `None` when it is behind the near plane or degenerate.
 pub fn project(g: &GaussianParams, cam: &Camera, s: &RenderSettings) -> Option<Projected> {
     let it = forward_intermediate(g, cam, s)?;
@@ -310,6 +327,23 @@ mod tests {
         let g2 = GaussianParams { rotation: Vec4::new(q.x, q.y, q.z, q.w), ..g };
         let p2 = project(&g2, &cam, &s).unwrap();
         assert!((p2.conic - p.conic).abs().max_element() < 1e-5);
+    }
+
+    #[test]
+    fn footprint_bound_contains_the_exact_footprint() {
+        let cam = camera();
+        let s = RenderSettings::default();
+        for k in 0..200 {
+            let f = k as f32;
+            let g = GaussianParams {
+                mean: Vec3::new(0.1 * (f * 0.37).sin(), 0.1 * (f * 0.71).cos(), 0.05 * (f * 1.3).sin()),
+                rotation: Vec4::new((f * 0.3).sin(), (f * 0.5).cos(), (f * 0.9).sin(), 1.0),
+                log_scale: Vec3::new(-4.0 + (f * 0.2).sin(), -3.5 + (f * 0.4).cos(), -5.0 + (f * 0.8).sin()),
+                ..gaussian()
+            };
+            let (p, (c, r)) = (project(&g, &cam, &s).unwrap(), footprint_bound(&g, &cam, &s).unwrap());
+            assert!((p.mean - c).length() < 1e-3 && p.radius <= r, "{k}: exact {} bound {r}", p.radius);
+        }
     }
 
     #[test]
