@@ -33,14 +33,14 @@ pub struct PhysicsBench {
 }
 
 /// A named scene constructor.
-pub type SceneMaker = (&'static str, fn() -> Scene);
+pub type SceneMaker = (&'static str, fn() -> Result<Scene>);
 
 /// The scenes `pegs bench physics` measures, by name.
 pub fn physics_scenes() -> Vec<SceneMaker> {
     vec![
-        ("cube_field_1k", || builtin::cube_field(1_000)),
-        ("cube_field_10k", || builtin::cube_field(10_000)),
-        ("cube_field_50k", || builtin::cube_field(50_000)),
+        ("cube_field_1k", || Ok(builtin::cube_field(1_000))),
+        ("cube_field_10k", || Ok(builtin::cube_field(10_000))),
+        ("cube_field_50k", || Ok(builtin::cube_field(50_000))),
         ("tblock_robot", builtin::tblock_and_robot),
     ]
 }
@@ -51,7 +51,7 @@ pub fn physics(config: &PhysicsConfig, ticks: usize, warmup: usize, only: &[Stri
         if !only.is_empty() && !only.iter().any(|o| o == name) {
             continue;
         }
-        let mut scene = make();
+        let mut scene = make()?;
         let mut solver = Solver::new(config.clone(), &scene.world)?;
         for _ in 0..warmup {
             scene.advance(&mut solver)?;

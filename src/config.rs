@@ -13,6 +13,7 @@ use std::path::Path;
 #[serde(default, deny_unknown_fields)]
 pub struct Config {
     pub physics: PhysicsConfig,
+    pub robot: crate::robot::RobotConfig,
 }
 
 /// Position-based dynamics (spec section 2, "Predict").
@@ -158,6 +159,7 @@ impl Config {
         let mut config = config;
         config.physics.ground.normal = config.physics.ground.normal.normalize_or(Vec3::Z);
         config.physics.validate()?;
+        config.robot.validate()?;
         Ok(config)
     }
 
@@ -181,7 +183,7 @@ mod tests {
     fn shipped_config_parses_and_matches_defaults() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/pegs.yaml");
         let c = Config::load(&path).expect("config/pegs.yaml must load");
-        assert_eq!(c.physics, PhysicsConfig::default(), "config/pegs.yaml documents the defaults; keep them equal");
+        assert_eq!(c, Config::default(), "config/pegs.yaml documents the defaults; keep them equal");
     }
 
     #[test]

@@ -1,5 +1,6 @@
-//! `pegs demo`: the main job. For now it runs the built-in tabletop physics scene and writes its
-//! trajectory; it grows into the full predict/correct loop as the system does.
+//! `pegs demo`: the main job. For now it runs the built-in tabletop physics scene (a Panda with a
+//! rod pusher replayed from joint states, a T-block, a dropped box, a dragged rope) and writes the
+//! objects' trajectories; it grows into the full predict/correct loop as the system does.
 
 use crate::config::Config;
 use crate::physics::Solver;
@@ -29,9 +30,17 @@ pub struct DemoSummary {
     pub objects: Vec<ObjectSummary>,
 }
 
+/// Render the world's Gaussians from a camera overlooking the table (CPU backend).
+fn snapshot(world: &crate::world::World, path: &Path) -> Result<()> {
+    use crate::render::{Camera, GaussianCloud, RenderSettings, Roi, cpu::CpuRenderer};
+    let camera = Camera::look_at(640, 360, 420.0, glam::Vec3::new(1.25, -0.55, 0.75), glam::Vec3::new(0.45, 0.0, 0.05));
+    let settings = RenderSettings { background: glam::Vec3::new(0.12, 0.12, 0.14), ..RenderSettings::default() };
+    CpuRenderer::new(settings).forward(&GaussianCloud::from_world(world), &camera, Roi::full(&camera)).save_png(path)
+}
+
 pub fn run(config: &Config, out_dir: &Path, seconds: f64) -> Result<DemoSummary> {
     std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
-    let mut scene = builtin::tabletop();
+    let mut scene = builtin::tabletop()?;
     let mut solver = Solver::new(config.physics.clone(), &scene.world)?;
     let mut writer = TrajectoryWriter::create(&out_dir.join("trajectory.csv"))?;
     let dynamic: Vec<u32> = scene.world.shapes.dynamic_ids().collect();
@@ -40,6 +49,7 @@ pub fn run(config: &Config, out_dir: &Path, seconds: f64) -> Result<DemoSummary>
     let mut deviation = vec![0.0f32; dynamic.len()];
     let ticks = (seconds / config.physics.dt as f64).round() as usize;
     writer.record(&scene.world)?;
+    snapshot(&scene.world, &out_dir.join("start.png"))?;
     let clock = std::time::Instant::now();
     for _ in 0..ticks {
         let before: Vec<glam::Vec3> = dynamic.iter().map(|&s| scene.world.shapes.pose[s as usize].translation).collect();
@@ -54,6 +64,7 @@ pub fn run(config: &Config, out_dir: &Path, seconds: f64) -> Result<DemoSummary>
     }
     let wall_ms_per_tick = clock.elapsed().as_secs_f64() * 1e3 / ticks.max(1) as f64;
     writer.finish()?;
+    snapshot(&scene.world, &out_dir.join("end.png"))?;
     let objects = dynamic
         .iter()
         .enumerate()

@@ -11,6 +11,7 @@ pub mod demo;
 pub mod math;
 pub mod physics;
 pub mod render;
+pub mod robot;
 pub mod scene;
 pub mod trajectory;
 pub mod world;

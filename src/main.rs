@@ -88,7 +88,7 @@ fn main() -> Result<()> {
                     o.object, o.start[0], o.start[1], o.start[2], o.end[0], o.end[1], o.end[2], o.travelled_m, o.max_rigid_deviation_m * 1e3
                 );
             }
-            println!("wrote {}/trajectory.csv and {}/summary.json", out.display(), out.display());
+            println!("wrote trajectory.csv, summary.json, start.png and end.png in {}", out.display());
         }
         Command::Bench { what: BenchTarget::Physics { json, config, ticks, warmup, scene } } => {
             let config = load_config(&config)?;

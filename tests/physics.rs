@@ -514,7 +514,7 @@ fn non_finite_inputs_are_rejected_and_counted_without_corrupting_the_world() {
 #[test]
 fn stepping_is_deterministic() {
     let run_scene = || {
-        let mut scene = pegs::scene::builtin::tabletop();
+        let mut scene = pegs::scene::builtin::tabletop().unwrap();
         let mut solver = Solver::new(PhysicsConfig::default(), &scene.world).unwrap();
         for _ in 0..45 {
             scene.advance(&mut solver).unwrap();

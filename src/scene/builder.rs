@@ -82,6 +82,18 @@ impl WorldBuilder {
         self.world.distance.push(a as u32, b as u32, d, 1.0);
     }
 
+    /// Set the standard deviation and opacity of the Gaussians bonded to `shape`'s particles.
+    pub fn set_gaussian_look(&mut self, shape: ShapeId, scale: f32, opacity: f32) {
+        let range = self.world.shapes.range(shape);
+        let g = &mut self.world.gaussians;
+        for i in 0..g.len() {
+            if range.contains(&(g.parent[i] as usize)) {
+                g.scale[i] = Vec3::splat(scale);
+                g.opacity[i] = opacity;
+            }
+        }
+    }
+
     /// Give every particle of `shape` the same initial velocity.
     pub fn set_velocity(&mut self, shape: ShapeId, velocity: Vec3) {
         for i in self.world.shapes.range(shape) {

@@ -1,0 +1,163 @@
+//! The robot in the world model: a URDF model (`model`), joint states and their interpolation in
+//! time (`joint_state`), particles sampled over link geometry (`sampling`), and the binding that
+//! adds each link to the world as a kinematic shape with bonded Gaussians and moves it by forward
+//! kinematics every physics substep. Nothing here is fitted by hand.
+
+pub mod ik;
+pub mod joint_state;
+pub mod model;
+pub mod sampling;
+
+pub use joint_state::{JointStateTracker, JointTrajectory, UpdateReport};
+pub use model::{GeometrySource, PackagePaths, RobotModel};
+pub use sampling::Sampling;
+
+use crate::math::Pose;
+use crate::physics::KinematicDriver;
+use crate::scene::WorldBuilder;
+use crate::world::{ShapeId, World};
+use anyhow::{Result, bail};
+use glam::{DAffine3, DQuat, Quat, Vec3};
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// How a robot enters the world.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RobotConfig {
+    /// URDF file; none means no robot in the scene.
+    pub urdf: Option<PathBuf>,
+    /// Directories searched for `package://` URIs.
+    pub package_paths: Vec<PathBuf>,
+    /// Pose of the URDF root link in the world: position (m) and quaternion x, y, z, w.
+    pub base_position: Vec3,
+    pub base_orientation: [f32; 4],
+    pub geometry: GeometrySource,
+    pub sampling: Sampling,
+    pub particle_radius: f32,
+    /// Particle spacing as a multiple of the radius (2 = touching particles).
+    pub spacing_per_radius: f32,
+    /// Colour for every link; overrides URDF materials.
+    pub colour: Option<Vec3>,
+    /// Colour of links without a URDF material.
+    pub default_colour: Vec3,
+}
+
+impl Default for RobotConfig {
+    fn default() -> Self {
+        Self {
+            urdf: None,
+            package_paths: Vec::new(),
+            base_position: Vec3::ZERO,
+            base_orientation: [0.0, 0.0, 0.0, 1.0],
+            geometry: GeometrySource::Collision,
+            sampling: Sampling::Surface,
+            particle_radius: 0.006,
+            spacing_per_radius: 2.0,
+            colour: None,
+            default_colour: Vec3::splat(0.9),
+        }
+    }
+}
+
+impl RobotConfig {
+    pub fn base_pose(&self) -> DAffine3 {
+        let [x, y, z, w] = self.base_orientation.map(|v| v as f64);
+        DAffine3::from_rotation_translation(DQuat::from_xyzw(x, y, z, w).normalize(), self.base_position.as_dvec3())
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        if !(self.particle_radius.is_finite() && self.particle_radius > 0.0) {
+            bail!("robot.particle_radius must be positive, got {}", self.particle_radius);
+        }
+        if !(self.spacing_per_radius.is_finite() && self.spacing_per_radius > 0.0) {
+            bail!("robot.spacing_per_radius must be positive, got {}", self.spacing_per_radius);
+        }
+        if !self.base_position.is_finite() || self.base_orientation.iter().any(|v| !v.is_finite()) || Quat::from_array(self.base_orientation).length() < 1e-6 {
+            bail!("robot.base_position / base_orientation must be finite and the quaternion non-zero");
+        }
+        Ok(())
+    }
+}
+
+fn to_pose(a: &DAffine3) -> Pose {
+    let (_, rot, t) = a.to_scale_rotation_translation();
+    Pose::new(t.as_vec3(), rot.as_quat().normalize())
+}
+
+/// A robot placed in a world: which shape each link became.
+#[derive(Clone, Debug)]
+pub struct RobotInWorld {
+    pub model: RobotModel,
+    pub base: DAffine3,
+    /// `(link index, shape)` for every link that has geometry.
+    pub link_shapes: Vec<(usize, ShapeId)>,
+}
+
+impl RobotInWorld {
+    /// Sample every link's geometry into a kinematic shape (body frame = link frame) with one
+    /// Gaussian per particle, placed at joint positions `q`.
+    pub fn add(builder: &mut WorldBuilder, model: RobotModel, q: &[f64], config: &RobotConfig) -> Result<Self> {
+        config.validate()?;
+        let base = config.base_pose();
+        let poses = model.forward_kinematics(q);
+        let radius = config.particle_radius;
+        let spacing = (radius * config.spacing_per_radius) as f64;
+        let mut link_shapes = Vec::new();
+        for (li, link) in model.links.iter().enumerate() {
+            if link.geometry.is_empty() {
+                continue;
+            }
+            let mut points = Vec::new();
+            for g in &link.geometry {
+                points.extend(sampling::sample(&g.shape, spacing, config.sampling).into_iter().map(|p| g.origin.transform_point3(p)));
+            }
+            let points: Vec<Vec3> = sampling::thin(points, spacing).into_iter().map(|p| p.as_vec3()).collect();
+            let colour = config.colour.or(link.colour).unwrap_or(config.default_colour);
+            let shape = builder.add_kinematic(&format!("robot/{}", link.name), &points, radius, to_pose(&(base * poses[li])), colour);
+            // Surface samples are `spacing` apart: Gaussians of half that spread close the gaps, so
+            // the robot renders solid and occludes what is behind it.
+            builder.set_gaussian_look(shape, 0.5 * spacing as f32, 0.98);
+            link_shapes.push((li, shape));
+        }
+        Ok(Self { model, base, link_shapes })
+    }
+
+    /// World poses of the linked shapes for joint positions `q`.
+    pub fn link_poses(&self, q: &[f64]) -> Vec<(ShapeId, Pose)> {
+        let fk = self.model.forward_kinematics(q);
+        self.link_shapes.iter().map(|&(li, s)| (s, to_pose(&(self.base * fk[li])))).collect()
+    }
+
+    /// Set every link's target for the end of the coming tick (used when no per-substep driver is).
+    pub fn set_targets(&self, world: &mut World, q: &[f64]) {
+        for (s, pose) in self.link_poses(q) {
+            world.shapes.target[s as usize] = pose;
+        }
+    }
+
+    /// A driver that moves the links by forward kinematics of `trajectory` interpolated at every
+    /// substep of the tick that starts at `tick_start` and lasts `dt`.
+    pub fn driver<'a>(&'a self, trajectory: &'a JointTrajectory, tick_start: f64, dt: f64) -> RobotDriver<'a> {
+        RobotDriver { robot: self, trajectory, tick_start, dt, cache: None }
+    }
+}
+
+/// Forward kinematics per substep (computed once per substep for all links).
+pub struct RobotDriver<'a> {
+    robot: &'a RobotInWorld,
+    trajectory: &'a JointTrajectory,
+    tick_start: f64,
+    dt: f64,
+    cache: Option<(f32, Vec<(ShapeId, Pose)>)>,
+}
+
+impl KinematicDriver for RobotDriver<'_> {
+    fn pose_at(&mut self, shape: ShapeId, tick_fraction: f32) -> Option<Pose> {
+        if self.cache.as_ref().is_none_or(|(f, _)| *f != tick_fraction) {
+            let q = self.trajectory.at(self.tick_start + self.dt * tick_fraction as f64)?;
+            self.cache = Some((tick_fraction, self.robot.link_poses(&q)));
+        }
+        self.cache.as_ref()?.1.iter().find(|(s, _)| *s == shape).map(|(_, p)| *p)
+    }
+}
