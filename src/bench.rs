@@ -155,19 +155,6 @@ pub fn tblock_render_scene(width: u32, height: u32) -> (GaussianCloud, Vec<Camer
     (cloud, cameras, start..end)
 }
 
-/// The pixel window covering the projected 3-sigma extent of `range` in `camera`, plus a margin.
-pub fn footprint_roi(cloud: &GaussianCloud, range: std::ops::Range<usize>, camera: &Camera, margin: f32) -> Roi {
-    let (mut lo, mut hi) = (glam::Vec2::splat(f32::MAX), glam::Vec2::splat(f32::MIN));
-    for i in range {
-        let (u, v, z) = camera.project(cloud.mean[i]);
-        let r = 3.0 * cloud.log_scale[i].max_element().exp() * camera.fx / z.max(1e-3) + margin;
-        lo = lo.min(glam::Vec2::new(u - r, v - r));
-        hi = hi.max(glam::Vec2::new(u + r, v + r));
-    }
-    let clamp = |x: f32, max: u32| x.clamp(0.0, max as f32) as u32;
-    Roi { x0: clamp(lo.x.floor(), camera.width), y0: clamp(lo.y.floor(), camera.height), x1: clamp(hi.x.ceil(), camera.width), y1: clamp(hi.y.ceil(), camera.height) }
-}
-
 #[derive(Debug, Serialize)]
 pub struct RenderTiming {
     pub backend: String,
@@ -221,7 +208,7 @@ pub fn render(repetitions: usize, save: Option<&std::path::Path>) -> Result<Rend
         for window in ["full", "roi"] {
             let rois: Vec<Roi> = cameras
                 .iter()
-                .map(|c| if window == "full" { Roi::full(c) } else { footprint_roi(&cloud, block.clone(), c, 8.0) })
+                .map(|c| if window == "full" { Roi::full(c) } else { crate::render::footprint_roi(&cloud, &block.clone().collect::<Vec<_>>(), c, 8.0) })
                 .collect();
           for renderer in renderers.iter_mut() {
             let (mut fwd, mut both) = (Vec::new(), Vec::new());

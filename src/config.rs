@@ -14,6 +14,8 @@ use std::path::Path;
 pub struct Config {
     pub physics: PhysicsConfig,
     pub robot: crate::robot::RobotConfig,
+    pub render: crate::render::RenderSettings,
+    pub correct: crate::correct::CorrectConfig,
 }
 
 /// Position-based dynamics (spec section 2, "Predict").
@@ -160,6 +162,7 @@ impl Config {
         config.physics.ground.normal = config.physics.ground.normal.normalize_or(Vec3::Z);
         config.physics.validate()?;
         config.robot.validate()?;
+        config.correct.validate()?;
         Ok(config)
     }
 

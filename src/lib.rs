@@ -7,11 +7,14 @@
 
 pub mod bench;
 pub mod config;
+pub mod correct;
 pub mod demo;
 pub mod math;
 pub mod physics;
 pub mod render;
 pub mod robot;
+pub mod scenario;
 pub mod scene;
+pub mod tracker;
 pub mod trajectory;
 pub mod world;

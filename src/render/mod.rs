@@ -206,6 +206,26 @@ impl GaussianCloud {
     }
 }
 
+/// The pixel window covering the projected 3-sigma extent of the Gaussians `indices` in `camera`,
+/// plus `margin` pixels, clamped to the image (empty if none is in front of the camera).
+pub fn footprint_roi(cloud: &GaussianCloud, indices: &[usize], camera: &Camera, margin: f32) -> Roi {
+    let (mut lo, mut hi) = (glam::Vec2::splat(f32::MAX), glam::Vec2::splat(f32::MIN));
+    for &i in indices {
+        let (u, v, z) = camera.project(cloud.mean[i]);
+        if z.is_nan() || z <= 1e-3 {
+            continue;
+        }
+        let r = 3.0 * cloud.log_scale[i].max_element().exp() * camera.fx.max(camera.fy) / z + margin;
+        lo = lo.min(glam::Vec2::new(u - r, v - r));
+        hi = hi.max(glam::Vec2::new(u + r, v + r));
+    }
+    if lo.x > hi.x {
+        return Roi { x0: 0, y0: 0, x1: 0, y1: 0 };
+    }
+    let clamp = |x: f32, max: u32| x.clamp(0.0, max as f32) as u32;
+    Roi { x0: clamp(lo.x.floor(), camera.width), y0: clamp(lo.y.floor(), camera.height), x1: clamp(hi.x.ceil(), camera.width), y1: clamp(hi.y.ceil(), camera.height) }
+}
+
 /// What a render produces over its window, row-major.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct RenderOutput {

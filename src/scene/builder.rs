@@ -94,6 +94,26 @@ impl WorldBuilder {
         }
     }
 
+    /// A Gaussian of the static scene (table, walls): world frame, no parent particle.
+    pub fn add_scene_gaussian(&mut self, g: crate::render::GaussianParams) {
+        let q = glam::Quat::from_xyzw(g.rotation.x, g.rotation.y, g.rotation.z, g.rotation.w).normalize();
+        let scale = Vec3::new(g.log_scale.x.exp(), g.log_scale.y.exp(), g.log_scale.z.exp());
+        self.world.gaussians.push(crate::world::NO_PARENT, g.mean, q, scale, crate::render::sigmoid(g.opacity_logit), g.colour);
+    }
+
+    /// Recolour the Gaussians of `shape` whose parent's rest position `paint` maps to a colour.
+    pub fn paint(&mut self, shape: ShapeId, paint: impl Fn(Vec3) -> Option<Vec3>) {
+        let range = self.world.shapes.range(shape);
+        for i in 0..self.world.gaussians.len() {
+            let p = self.world.gaussians.parent[i] as usize;
+            if range.contains(&p)
+                && let Some(c) = paint(self.world.particles.rest[p])
+            {
+                self.world.gaussians.colour[i] = c;
+            }
+        }
+    }
+
     /// Give every particle of `shape` the same initial velocity.
     pub fn set_velocity(&mut self, shape: ShapeId, velocity: Vec3) {
         for i in self.world.shapes.range(shape) {

@@ -1,0 +1,241 @@
+//! Correct: visual forces (spec section 2, "Correct"). After each predict step, Adam moves the
+//! tracked objects' Gaussians to reduce the photometric error against the camera images; each
+//! Gaussian's displacement becomes a force on its parent particle (gain x displacement, the
+//! particle's mass acting as visual inertia) that the next predict step applies. The world's
+//! Gaussians are never modified: the optimisation runs on a copy that is dropped afterwards.
+//!
+//! This module owns the optimisation and the force rule; it renders through `render` and leaves
+//! the integration of the forces to `physics`.
+
+pub mod adam;
+
+use crate::render::{self, Backend, Camera, GaussianCloud, PixelGrads, RenderSettings, Renderer, Roi};
+use crate::world::{NO_PARENT, ShapeKind, World};
+use adam::Adam;
+use anyhow::{Result, bail};
+use glam::{Vec3, Vec4};
+use serde::{Deserialize, Serialize};
+
+/// Every number of the correction step.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CorrectConfig {
+    pub enabled: bool,
+    pub backend: Backend,
+    /// Adam iterations per tick (moments reset every tick).
+    pub iterations: u32,
+    /// Learning rates: means (m), rotations (quaternion units), colours, opacity logits.
+    pub lr_mean: f32,
+    pub lr_rotation: f32,
+    pub lr_colour: f32,
+    pub lr_opacity: f32,
+    pub beta1: f32,
+    pub beta2: f32,
+    pub epsilon: f32,
+    /// Force per metre of Gaussian displacement, N/m.
+    pub gain: f32,
+    /// Force per metre per second of change in a Gaussian's displacement between ticks, N s/m:
+    /// the derivative term the paper suggests against the spring-like oscillation of visual forces.
+    pub damping: f32,
+    /// Displacements shorter than this (m) are ignored.
+    pub min_displacement: f32,
+    /// Render only the window around the tracked objects' footprint (plus this margin, px).
+    pub use_roi: bool,
+    pub roi_margin_px: f32,
+}
+
+impl Default for CorrectConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            backend: Backend::Cpu,
+            iterations: 5,
+            lr_mean: 0.0015,
+            lr_rotation: 0.001,
+            lr_colour: 0.0,
+            lr_opacity: 0.0,
+            beta1: 0.9,
+            beta2: 0.999,
+            epsilon: 1e-8,
+            // Tuned on the resting-box (3 cm / 20 deg start offset) and pushed-box scenarios at
+            // 3 x 320x180, 1 g particles (mean error, resting / pushed): gain 1.5 -> 18.7 / 5.0 mm
+            // (too weak to beat static friction), 2 -> 3.5 / 4.1 mm, 2.5 -> 23.2 / 5.4 mm, 3 ->
+            // 46.9 / 22.6 mm (oscillates; 4 and above diverge). The derivative term did not help
+            // there (gain 2 + damping 0.03 -> 9.4 / 3.9 mm; gain 3 + 0.05 -> 20.4 / 5.3 mm).
+            gain: 2.0,
+            damping: 0.0,
+            min_displacement: 1e-4,
+            use_roi: true,
+            roi_margin_px: 12.0,
+        }
+    }
+}
+
+impl CorrectConfig {
+    pub fn validate(&self) -> Result<()> {
+        for (name, v) in [("lr_mean", self.lr_mean), ("lr_rotation", self.lr_rotation), ("lr_colour", self.lr_colour), ("lr_opacity", self.lr_opacity), ("gain", self.gain), ("damping", self.damping), ("min_displacement", self.min_displacement), ("roi_margin_px", self.roi_margin_px)] {
+            if !(v.is_finite() && v >= 0.0) {
+                bail!("correct.{name} must be finite and >= 0, got {v}");
+            }
+        }
+        if !(0.0..1.0).contains(&self.beta1) || !(0.0..1.0).contains(&self.beta2) || self.epsilon.is_nan() || self.epsilon <= 0.0 {
+            bail!("correct.beta1 and beta2 must be in [0, 1) and epsilon > 0");
+        }
+        Ok(())
+    }
+}
+
+/// One camera's view at the current tick: its calibration and full colour image (row-major,
+/// linear RGB in [0, 1]).
+pub struct View<'a> {
+    pub camera: Camera,
+    pub image: &'a [Vec3],
+}
+
+/// What one correction did.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct CorrectStats {
+    /// Photometric loss (mean squared error over the windows, summed over cameras) before and
+    /// after the Adam iterations.
+    pub loss_before: f32,
+    pub loss_after: f32,
+    /// Gaussians whose displacement exceeded the threshold and produced a force.
+    pub displaced: usize,
+    /// Total visual force per shape (N), indexed by shape id.
+    pub force: Vec<Vec3>,
+}
+
+pub struct Corrector {
+    pub config: CorrectConfig,
+    renderer: Box<dyn Renderer + Send>,
+    adam: [Adam; 4],
+    /// Each Gaussian's displacement at the previous tick (for the derivative term).
+    previous: Vec<Vec3>,
+}
+
+impl Corrector {
+    pub fn new(config: CorrectConfig, render: RenderSettings) -> Result<Self> {
+        config.validate()?;
+        let renderer = render::open(config.backend, render)?;
+        let a = Adam::new(config.beta1, config.beta2, config.epsilon);
+        Ok(Self { config, renderer, adam: [a.clone(), a.clone(), a.clone(), a], previous: Vec::new() })
+    }
+
+    /// Optimise the tracked objects' Gaussians against `views` and add the resulting visual
+    /// forces to the world's particles (they act in the next predict step). `dt` is the tick.
+    pub fn correct(&mut self, world: &mut World, views: &[View], dt: f32) -> Result<CorrectStats> {
+        let mut stats = CorrectStats { force: vec![Vec3::ZERO; world.shapes.len()], ..Default::default() };
+        let mut cloud = GaussianCloud::from_world(world);
+        // Free: Gaussians bonded to particles of dynamic objects. Robot and scene only occlude.
+        let free: Vec<usize> = (0..cloud.len())
+            .filter(|&i| {
+                let p = world.gaussians.parent[i];
+                p != NO_PARENT && matches!(world.shapes.kind[world.particles.shape[p as usize] as usize], ShapeKind::Rigid | ShapeKind::Rope)
+            })
+            .collect();
+        if free.is_empty() || views.is_empty() {
+            return Ok(stats);
+        }
+        for v in views {
+            if v.image.len() != (v.camera.width * v.camera.height) as usize {
+                bail!("image of {} pixels for a {}x{} camera", v.image.len(), v.camera.width, v.camera.height);
+            }
+        }
+        let windows: Vec<Roi> = views
+            .iter()
+            .map(|v| if self.config.use_roi { render::footprint_roi(&cloud, &free, &v.camera, self.config.roi_margin_px) } else { Roi::full(&v.camera) })
+            .collect();
+        let targets: Vec<Vec<Vec3>> = views.iter().zip(&windows).map(|(v, w)| crop(v.image, v.camera.width, *w)).collect();
+
+        let n = free.len();
+        let start: Vec<Vec3> = free.iter().map(|&i| cloud.mean[i]).collect();
+        let mut means: Vec<f32> = start.iter().flat_map(|m| m.to_array()).collect();
+        let mut rots: Vec<f32> = free.iter().flat_map(|&i| cloud.rotation[i].to_array()).collect();
+        let mut cols: Vec<f32> = free.iter().flat_map(|&i| cloud.colour[i].to_array()).collect();
+        let mut ops: Vec<f32> = free.iter().map(|&i| cloud.opacity_logit[i]).collect();
+        for (a, len) in self.adam.iter_mut().zip([3 * n, 4 * n, 3 * n, n]) {
+            a.reset(len);
+        }
+        let c = self.config.clone();
+        for it in 0..=c.iterations {
+            for (k, &i) in free.iter().enumerate() {
+                cloud.mean[i] = Vec3::from_slice(&means[3 * k..]);
+                cloud.rotation[i] = Vec4::from_slice(&rots[4 * k..]);
+                cloud.colour[i] = Vec3::from_slice(&cols[3 * k..]);
+                cloud.opacity_logit[i] = ops[k];
+            }
+            let (mut gm, mut gr, mut gc, mut go) = (vec![0.0f32; 3 * n], vec![0.0f32; 4 * n], vec![0.0f32; 3 * n], vec![0.0f32; n]);
+            let mut loss = 0.0f32;
+            for ((view, window), target) in views.iter().zip(&windows).zip(&targets) {
+                if window.pixels() == 0 {
+                    continue;
+                }
+                let out = self.renderer.forward(&cloud, &view.camera, *window)?;
+                let scale = 1.0 / (3.0 * window.pixels() as f32);
+                loss += out.colour.iter().zip(target).map(|(a, b)| (*a - *b).length_squared()).sum::<f32>() * scale;
+                if it == c.iterations {
+                    continue; // last pass only measures the loss after the updates
+                }
+                let d = PixelGrads { colour: out.colour.iter().zip(target).map(|(a, b)| 2.0 * scale * (*a - *b)).collect(), ..Default::default() };
+                let g = self.renderer.backward(&cloud, &d)?;
+                for (k, &i) in free.iter().enumerate() {
+                    for j in 0..3 {
+                        gm[3 * k + j] += g.mean[i][j];
+                        gc[3 * k + j] += g.colour[i][j];
+                    }
+                    for j in 0..4 {
+                        gr[4 * k + j] += g.rotation[i][j];
+                    }
+                    go[k] += g.opacity_logit[i];
+                }
+            }
+            if it == 0 {
+                stats.loss_before = loss;
+            }
+            if it == c.iterations {
+                stats.loss_after = loss;
+                break;
+            }
+            self.adam[0].step(&mut means, &gm, c.lr_mean);
+            if c.lr_rotation > 0.0 {
+                self.adam[1].step(&mut rots, &gr, c.lr_rotation);
+            }
+            if c.lr_colour > 0.0 {
+                self.adam[2].step(&mut cols, &gc, c.lr_colour);
+            }
+            if c.lr_opacity > 0.0 {
+                self.adam[3].step(&mut ops, &go, c.lr_opacity);
+            }
+        }
+        // Displacements become forces on the parent particles.
+        if self.previous.len() != cloud.len() {
+            self.previous = vec![Vec3::ZERO; cloud.len()];
+        }
+        for (k, &i) in free.iter().enumerate() {
+            let mut d = Vec3::from_slice(&means[3 * k..]) - start[k];
+            if !d.is_finite() || d.length() < c.min_displacement {
+                d = Vec3::ZERO;
+            }
+            let rate = (d - self.previous[i]) / dt;
+            self.previous[i] = d;
+            if d == Vec3::ZERO {
+                continue;
+            }
+            let p = world.gaussians.parent[i] as usize;
+            let f = c.gain * d + c.damping * rate;
+            world.particles.external_force[p] += f;
+            stats.force[world.particles.shape[p] as usize] += f;
+            stats.displaced += 1;
+        }
+        Ok(stats)
+    }
+}
+
+fn crop(image: &[Vec3], width: u32, w: Roi) -> Vec<Vec3> {
+    let mut out = Vec::with_capacity(w.pixels());
+    for y in w.y0..w.y1 {
+        let row = (y * width) as usize;
+        out.extend_from_slice(&image[row + w.x0 as usize..row + w.x1 as usize]);
+    }
+    out
+}
