@@ -247,3 +247,85 @@ pub fn render(repetitions: usize, save: Option<&std::path::Path>) -> Result<Rend
     }
     Ok(RenderBench { benchmark: "render", threads: rayon::current_num_threads(), runs, skipped })
 }
+
+// ---- whole ticks ----
+
+#[derive(Debug, Serialize)]
+pub struct TickTiming {
+    pub backend: String,
+    pub resolution: [u32; 2],
+    pub cameras: usize,
+    pub ticks: usize,
+    pub predict_ms: f64,
+    pub correct_ms: f64,
+    pub tick_ms: f64,
+    pub ticks_per_second: f64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct TickBench {
+    pub benchmark: &'static str,
+    pub scenario: &'static str,
+    pub threads: usize,
+    pub adam_iterations: u32,
+    pub runs: Vec<TickTiming>,
+    pub skipped: Vec<String>,
+}
+
+/// Time full predict + correct ticks of the pushed T-block scenario (observations rendered
+/// beforehand, outside the timing) for each resolution and backend.
+pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> Result<TickBench> {
+    use crate::config::Config;
+    use crate::correct::View;
+    use crate::scenario;
+    use crate::tracker::Tracker;
+    let mut runs = Vec::new();
+    let mut skipped = Vec::new();
+    let scenario_name = "pushed_tblock";
+    for &backend in backends {
+        let mut config = Config::default();
+        config.correct.backend = backend;
+        for &(w, h) in resolutions {
+            let cameras = scenario::cameras(w, h);
+            let mut truth = Tracker::new(scenario::build(scenario_name, crate::math::Pose::IDENTITY)?, &config, false)?;
+            let mut model = match Tracker::new(scenario::build(scenario_name, crate::math::Pose::IDENTITY)?, &config, true) {
+                Ok(m) => m,
+                Err(e) => {
+                    skipped.push(format!("{backend:?}: {e:#}"));
+                    break;
+                }
+            };
+            let (mut predict, mut correct) = (Vec::new(), Vec::new());
+            for k in 0..ticks + 2 {
+                truth.tick(&[])?;
+                let images = scenario::observe(&truth.scene.world, &cameras, 0.01, 1.0, k as u64);
+                let views: Vec<View> = cameras.iter().zip(&images).map(|(c, i)| View { camera: *c, image: i }).collect();
+                let t = Instant::now();
+                model.scene.advance(&mut model.solver)?;
+                let p = t.elapsed().as_secs_f64() * 1e3;
+                let t = Instant::now();
+                let dt = model.solver.config().dt;
+                if let Some(c) = &mut model.corrector {
+                    c.correct(&mut model.scene.world, &views, dt)?;
+                }
+                let c = t.elapsed().as_secs_f64() * 1e3;
+                if k >= 2 {
+                    predict.push(p);
+                    correct.push(c);
+                }
+            }
+            let (p, c) = (median(predict), median(correct));
+            runs.push(TickTiming {
+                backend: format!("{backend:?}").to_lowercase(),
+                resolution: [w, h],
+                cameras: cameras.len(),
+                ticks,
+                predict_ms: p,
+                correct_ms: c,
+                tick_ms: p + c,
+                ticks_per_second: 1e3 / (p + c),
+            });
+        }
+    }
+    Ok(TickBench { benchmark: "tick", scenario: scenario_name, threads: rayon::current_num_threads(), adam_iterations: crate::correct::CorrectConfig::default().iterations, runs, skipped })
+}

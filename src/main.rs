@@ -63,6 +63,23 @@ enum BenchTarget {
         #[arg(long)]
         save: Option<PathBuf>,
     },
+    /// Time full predict + correct ticks of the pushed T-block scenario, 3 cameras at 320x180
+    /// and 640x360, per backend.
+    Tick {
+        #[arg(long)]
+        json: bool,
+        #[arg(long, default_value_t = 10)]
+        ticks: usize,
+        /// Backends to time (default: cpu and wgpu).
+        #[arg(long, value_enum)]
+        backend: Vec<BackendArg>,
+    },
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum BackendArg {
+    Cpu,
+    Wgpu,
 }
 
 fn load_config(path: &Option<PathBuf>) -> Result<Config> {
@@ -114,6 +131,28 @@ fn main() -> Result<()> {
                         "{:<4} {}x{} {:<4} {:>7} px/cam: forward {:8.2} ms, forward+backward {:8.2} ms ({:.2} ms per camera)",
                         r.backend, r.resolution[0], r.resolution[1], r.window, r.pixels_per_camera, r.forward_ms, r.forward_backward_ms, r.forward_backward_ms_per_camera
                     );
+                }
+            }
+        }
+        Command::Bench { what: BenchTarget::Tick { json, ticks, backend } } => {
+            use pegs::render::Backend;
+            let backends: Vec<Backend> = if backend.is_empty() {
+                vec![Backend::Cpu, Backend::Wgpu]
+            } else {
+                backend.iter().map(|b| match b { BackendArg::Cpu => Backend::Cpu, BackendArg::Wgpu => Backend::Wgpu }).collect()
+            };
+            let report = pegs::bench::tick(ticks.max(1), &backends, &[(320, 180), (640, 360)])?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                for r in &report.runs {
+                    println!(
+                        "{:<5} {} x {}x{}: predict {:7.2} ms + correct {:8.2} ms = {:8.2} ms per tick ({:.1} ticks/s)",
+                        r.backend, r.cameras, r.resolution[0], r.resolution[1], r.predict_ms, r.correct_ms, r.tick_ms, r.ticks_per_second
+                    );
+                }
+                for s in &report.skipped {
+                    println!("skipped {s}");
                 }
             }
         }

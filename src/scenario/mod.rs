@@ -13,7 +13,12 @@ use crate::world::World;
 use anyhow::{Context, Result, bail};
 use glam::{DVec3, Quat, Vec3, Vec4};
 
-pub const NAMES: [&str; 2] = ["resting_box", "pushed_box"];
+pub const NAMES: [&str; 3] = ["resting_box", "pushed_box", "pushed_tblock"];
+
+/// The tracked object of scenario `name`.
+pub fn object_name(name: &str) -> &'static str {
+    if name.contains("tblock") { "tblock" } else { "box" }
+}
 
 /// Particle radius and mass of scenario objects.
 const R: f32 = 0.005;
@@ -50,19 +55,29 @@ pub fn cameras(width: u32, height: u32) -> Vec<Camera> {
 pub fn build(name: &str, offset: Pose) -> Result<Scene> {
     let mut b = WorldBuilder::new();
     add_table(&mut b);
-    // A 12 x 6 x 5 cm box, blue with a yellow end, so no rotation of it looks the same.
-    let half = Vec3::new(0.06, 0.03, 0.025);
-    let rest = Pose::new(Vec3::new(0.5, 0.0, R + 2.0 * 2.0 * R), Quat::from_rotation_z(0.2));
-    let start = Pose::new(rest.translation + offset.translation, offset.rotation * rest.rotation);
-    let bx = b.add_rigid("box", &box_lattice(half, 2.0 * R), R, MASS, start, Vec3::new(0.15, 0.35, 0.9));
-    b.set_gaussian_look(bx, R, 0.97);
-    b.paint(bx, |p| if p.x > 0.02 { Some(Vec3::new(0.95, 0.8, 0.1)) } else { None });
+    if object_name(name) == "tblock" {
+        // The push-T block of the paper's real scenes: 20 x 20 cm, 3 cm thick, orange.
+        let rest = Pose::new(Vec3::new(0.5, 0.0, R + 2.0 * R), Quat::from_rotation_z(0.35));
+        let start = Pose::new(rest.translation + offset.translation, offset.rotation * rest.rotation);
+        let t = b.add_rigid("tblock", &crate::scene::t_block_lattice(0.2, 0.05, 0.03, 2.0 * R), R, MASS, start, Vec3::new(1.0, 0.45, 0.1));
+        b.set_gaussian_look(t, R, 0.97);
+    } else {
+        // A 12 x 6 x 5 cm box, blue with a yellow end, so no rotation of it looks the same.
+        let half = Vec3::new(0.06, 0.03, 0.025);
+        let rest = Pose::new(Vec3::new(0.5, 0.0, R + 2.0 * 2.0 * R), Quat::from_rotation_z(0.2));
+        let start = Pose::new(rest.translation + offset.translation, offset.rotation * rest.rotation);
+        let bx = b.add_rigid("box", &box_lattice(half, 2.0 * R), R, MASS, start, Vec3::new(0.15, 0.35, 0.9));
+        b.set_gaussian_look(bx, R, 0.97);
+        b.paint(bx, |p| if p.x > 0.02 { Some(Vec3::new(0.95, 0.8, 0.1)) } else { None });
+    }
     let model = builtin::panda_pusher()?;
     let waypoints: Vec<(f64, DVec3)> = match name {
         // The robot parks away from the box.
         "resting_box" => vec![(0.0, DVec3::new(0.3, -0.3, 0.2))],
         // The rod comes down behind the box and pushes it 15 cm along +y.
         "pushed_box" => vec![(0.0, DVec3::new(0.5, -0.16, 0.12)), (0.5, DVec3::new(0.5, -0.16, 0.02)), (3.5, DVec3::new(0.5, 0.1, 0.02)), (4.0, DVec3::new(0.5, 0.1, 0.12))],
+        // The rod comes down behind the stem and pushes the T 15 cm along +y, turning it.
+        "pushed_tblock" => vec![(0.0, DVec3::new(0.5, -0.22, 0.12)), (0.5, DVec3::new(0.5, -0.22, 0.015)), (3.5, DVec3::new(0.5, 0.04, 0.015)), (4.0, DVec3::new(0.5, 0.04, 0.12))],
         other => bail!("unknown scenario '{other}' (known: {})", NAMES.join(", ")),
     };
     let mut waypoints = waypoints;
