@@ -16,6 +16,19 @@ pub struct Config {
     pub robot: crate::robot::RobotConfig,
     pub render: crate::render::RenderSettings,
     pub correct: crate::correct::CorrectConfig,
+    pub scene: SceneConfig,
+}
+
+/// Where the tracker's world comes from. Until initialisation from cameras exists, a built-in
+/// scenario's world, with its tracked object moved by an initial pose error.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SceneConfig {
+    /// A name from `pegs scenario list`.
+    pub scenario: Option<String>,
+    /// Initial pose error of the tracked object: translation (m) and rotation about z (rad).
+    pub offset_position: Vec3,
+    pub offset_yaw: f32,
 }
 
 /// Position-based dynamics (spec section 2, "Predict").
@@ -166,6 +179,15 @@ impl Config {
         Ok(config)
     }
 
+    /// YAML in the ROS 2 parameter-file layout under the node name `pegs`.
+    pub fn to_yaml(&self) -> Result<String> {
+        let mut params = serde_yaml_ng::Mapping::new();
+        params.insert("ros__parameters".into(), serde_yaml_ng::to_value(self)?);
+        let mut root = serde_yaml_ng::Mapping::new();
+        root.insert("pegs".into(), params.into());
+        Ok(serde_yaml_ng::to_string(&root)?)
+    }
+
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("cannot read configuration {}", path.display()))?;
         Self::from_yaml(&text).with_context(|| format!("in configuration {}", path.display()))
@@ -187,6 +209,14 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/pegs.yaml");
         let c = Config::load(&path).expect("config/pegs.yaml must load");
         assert_eq!(c, Config::default(), "config/pegs.yaml documents the defaults; keep them equal");
+    }
+
+    #[test]
+    fn written_configuration_reads_back_equal() {
+        let mut c = Config::default();
+        c.physics.substeps = 11;
+        c.scene.scenario = Some("pushed_box".into());
+        assert_eq!(Config::from_yaml(&c.to_yaml().unwrap()).unwrap(), c);
     }
 
     #[test]

@@ -31,6 +31,49 @@ enum Command {
         #[command(subcommand)]
         what: BenchTarget,
     },
+    /// Synthetic scenarios with ground truth.
+    Scenario {
+        #[command(subcommand)]
+        what: ScenarioCommand,
+    },
+    /// Run predict/correct on a recording (MCAP) and write objects.csv and metrics.json.
+    Replay {
+        recording: PathBuf,
+        #[arg(long)]
+        config: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// Physics only.
+        #[arg(long)]
+        no_visual_forces: bool,
+        /// Visual forces only: no gravity, ground or collisions.
+        #[arg(long)]
+        no_physics: bool,
+    },
+}
+
+#[derive(Subcommand)]
+enum ScenarioCommand {
+    /// List the scenarios.
+    List,
+    /// Simulate a scenario and write DIR/recording.mcap, DIR/ground_truth.csv and DIR/config.yaml.
+    Generate {
+        name: String,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 640)]
+        width: u32,
+        #[arg(long, default_value_t = 360)]
+        height: u32,
+        #[arg(long, default_value_t = 4.5)]
+        seconds: f64,
+        /// Initial position error (m, along x) the replay config gives the tracker.
+        #[arg(long, default_value_t = 0.01)]
+        offset: f32,
+        /// Initial rotation error about z (degrees) the replay config gives the tracker.
+        #[arg(long, default_value_t = 5.0)]
+        offset_yaw_deg: f32,
+    },
 }
 
 #[derive(Subcommand)]
@@ -133,6 +176,36 @@ fn main() -> Result<()> {
                     );
                 }
             }
+        }
+        Command::Scenario { what: ScenarioCommand::List } => {
+            for n in pegs::scenario::NAMES {
+                println!("{n}");
+            }
+        }
+        Command::Scenario { what: ScenarioCommand::Generate { name, out, width, height, seconds, offset, offset_yaw_deg } } => {
+            let opts = pegs::scenario::generate::GenerateOptions {
+                width,
+                height,
+                seconds,
+                offset_position: glam::Vec3::new(offset, 0.0, 0.0),
+                offset_yaw: offset_yaw_deg.to_radians(),
+                ..Default::default()
+            };
+            pegs::scenario::generate::generate(&name, &out, &opts)?;
+            println!("wrote {0}/recording.mcap, {0}/ground_truth.csv and {0}/config.yaml", out.display());
+        }
+        Command::Replay { recording, config, out, no_visual_forces, no_physics } => {
+            let config = Config::load(&config)?;
+            let opts = pegs::replay::ReplayOptions { visual_forces: !no_visual_forces, physics: !no_physics, progress: true };
+            let m = pegs::replay::run(&recording, &config, &out, opts)?;
+            println!("replayed {} ticks ({:.1} s) from cameras {:?} [{}], {:.1} ms per tick", m.ticks, m.seconds, m.cameras, m.mode, m.wall_ms_per_tick);
+            for (object, e) in &m.tracking_error {
+                println!("  {object}: tracking error mean {:.2} mm, p95 {:.2} mm, final {:.2} mm", e.mean_mm, e.p95_mm, e.final_mm);
+            }
+            if m.rejected_images + m.rejected_joint_states > 0 {
+                println!("  rejected {} images and {} joint states (see metrics.json warnings)", m.rejected_images, m.rejected_joint_states);
+            }
+            println!("wrote {0}/objects.csv and {0}/metrics.json", out.display());
         }
         Command::Bench { what: BenchTarget::Tick { json, ticks, backend } } => {
             use pegs::render::Backend;

@@ -11,6 +11,8 @@ use crate::scene::builtin::{self, Scene, pusher_trajectory};
 use crate::scene::{WorldBuilder, box_lattice};
 use crate::world::World;
 use anyhow::{Context, Result, bail};
+
+pub mod generate;
 use glam::{DVec3, Quat, Vec3, Vec4};
 
 pub const NAMES: [&str; 3] = ["resting_box", "pushed_box", "pushed_tblock"];

@@ -1,0 +1,312 @@
+//! `pegs replay`: the predict / correct loop driven by a recording instead of live topics. Ticks
+//! run on the recording's own clock; each tick uses the newest image of every camera stamped no
+//! later than the tick, and the robot follows the recorded joint states interpolated in time.
+//! Deterministic: the same recording and configuration give the same outputs.
+
+use crate::config::Config;
+use crate::correct::View;
+use crate::math::Pose;
+use crate::msgs::{self, CameraInfo, Image, JointState, TfMessage};
+use crate::record::{self, RawMessage};
+use crate::render::Camera;
+use crate::robot::{JointStateTracker, JointTrajectory};
+use crate::scenario;
+use crate::tracker::Tracker;
+use crate::trajectory::TrajectoryWriter;
+use anyhow::{Context, Result, bail};
+use glam::{Quat, Vec3};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::Path;
+
+#[derive(Clone, Copy, Debug)]
+pub struct ReplayOptions {
+    pub visual_forces: bool,
+    /// False: visual forces only (no gravity, ground or collisions), as in the paper's ablation.
+    pub physics: bool,
+    pub progress: bool,
+}
+
+impl Default for ReplayOptions {
+    fn default() -> Self {
+        Self { visual_forces: true, physics: true, progress: true }
+    }
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ErrorStats {
+    pub mean_mm: f32,
+    pub p95_mm: f32,
+    pub final_mm: f32,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Metrics {
+    pub recording: String,
+    pub mode: String,
+    pub ticks: usize,
+    pub seconds: f64,
+    pub cameras: Vec<String>,
+    pub wall_ms_per_tick: f64,
+    pub mean_loss: f32,
+    pub rejected_images: usize,
+    pub rejected_joint_states: usize,
+    pub warnings: Vec<String>,
+    /// 3-D tracking error per object against `ground_truth.csv` beside the recording, if any.
+    pub tracking_error: BTreeMap<String, ErrorStats>,
+}
+
+/// A recording's content sorted for replay.
+struct Streams {
+    cameras: Vec<(String, Camera)>,
+    /// Per camera: (stamp, image) in time order.
+    images: Vec<Vec<(f64, Image)>>,
+    joint_states: Vec<(f64, JointState)>,
+}
+
+fn camera_of(topic: &str, suffix: &str) -> Option<String> {
+    topic.strip_suffix(suffix).map(|p| p.trim_start_matches('/').to_string())
+}
+
+fn parse(messages: Vec<RawMessage>, warnings: &mut Vec<String>) -> Result<Streams> {
+    let mut infos: BTreeMap<String, CameraInfo> = BTreeMap::new();
+    let mut poses: BTreeMap<String, Pose> = BTreeMap::new();
+    let mut images: BTreeMap<String, Vec<(f64, Image)>> = BTreeMap::new();
+    let mut joint_states = Vec::new();
+    for m in messages {
+        let decoded: Result<()> = (|| {
+            if let Some(cam) = camera_of(&m.topic, "/color/camera_info") {
+                let info: CameraInfo = msgs::from_cdr(&m.data)?;
+                infos.entry(cam).or_insert(info);
+            } else if let Some(cam) = camera_of(&m.topic, "/color/image_raw") {
+                let img: Image = msgs::from_cdr(&m.data)?;
+                images.entry(cam).or_default().push((img.header.stamp.seconds(), img));
+            } else if m.topic == record::JOINT_STATES {
+                let js: JointState = msgs::from_cdr(&m.data)?;
+                joint_states.push((js.header.stamp.seconds(), js));
+            } else if m.topic == record::TF_STATIC {
+                let tf: TfMessage = msgs::from_cdr(&m.data)?;
+                for t in tf.transforms {
+                    let (p, q) = (t.transform.translation, t.transform.rotation);
+                    let cam_to_world = Pose::new(Vec3::new(p.x as f32, p.y as f32, p.z as f32), Quat::from_xyzw(q.x as f32, q.y as f32, q.z as f32, q.w as f32).normalize());
+                    if t.header.frame_id != record::WORLD_FRAME {
+                        warnings.push(format!("/tf_static {} -> {}: only transforms from '{}' are used", t.header.frame_id, t.child_frame_id, record::WORLD_FRAME));
+                        continue;
+                    }
+                    poses.insert(t.child_frame_id, cam_to_world.inverse());
+                }
+            }
+            Ok(())
+        })();
+        if let Err(e) = decoded {
+            warnings.push(format!("skipped a message on {}: {e:#}", m.topic));
+        }
+    }
+    let mut cameras = Vec::new();
+    let mut streams = Vec::new();
+    for (name, mut imgs) in images {
+        let Some(info) = infos.get(&name) else {
+            warnings.push(format!("camera {name}: images but no CameraInfo; camera ignored"));
+            continue;
+        };
+        let Some(pose) = poses.get(&record::optical_frame(&name)) else {
+            warnings.push(format!("camera {name}: no /tf_static transform to {}; camera ignored", record::optical_frame(&name)));
+            continue;
+        };
+        let k = info.k;
+        if !(k[0] > 0.0 && k[4] > 0.0) || info.width == 0 || info.height == 0 {
+            warnings.push(format!("camera {name}: invalid CameraInfo; camera ignored"));
+            continue;
+        }
+        imgs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        cameras.push((name, Camera::from_opencv(info.width, info.height, k[0] as f32, k[4] as f32, k[2] as f32, k[5] as f32, *pose)));
+        streams.push(imgs);
+    }
+    joint_states.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Ok(Streams { cameras, images: streams, joint_states })
+}
+
+/// Linear RGB in [0, 1] from an rgb8 or bgr8 image of the camera's size (BGR converted here, at
+/// the boundary); an explanation otherwise.
+pub fn decode_image(img: &Image, camera: &Camera) -> std::result::Result<Vec<Vec3>, String> {
+    if img.width != camera.width || img.height != camera.height {
+        return Err(format!("image is {}x{}, CameraInfo says {}x{}", img.width, img.height, camera.width, camera.height));
+    }
+    let bgr = match img.encoding.as_str() {
+        "rgb8" => false,
+        "bgr8" => true,
+        other => return Err(format!("unsupported encoding '{other}' (rgb8 and bgr8 are)")),
+    };
+    let step = img.step as usize;
+    let (w, h) = (img.width as usize, img.height as usize);
+    if step < 3 * w || img.data.len() < step * h {
+        return Err(format!("image data of {} bytes is too short for {w}x{h} with step {step}", img.data.len()));
+    }
+    let mut out = Vec::with_capacity(w * h);
+    for y in 0..h {
+        for x in 0..w {
+            let p = &img.data[y * step + 3 * x..y * step + 3 * x + 3];
+            let (r, g, b) = if bgr { (p[2], p[1], p[0]) } else { (p[0], p[1], p[2]) };
+            out.push(Vec3::new(r as f32, g as f32, b as f32) / 255.0);
+        }
+    }
+    Ok(out)
+}
+
+/// Ground-truth poses per object: time-ordered `(t, pose)`.
+fn read_ground_truth(path: &Path) -> Result<BTreeMap<String, Vec<(f64, Pose)>>> {
+    let text = std::fs::read_to_string(path)?;
+    let mut out: BTreeMap<String, Vec<(f64, Pose)>> = BTreeMap::new();
+    for (n, line) in text.lines().enumerate().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() != 9 {
+            bail!("{}:{}: expected 9 fields", path.display(), n + 1);
+        }
+        let v: Vec<f32> = f[2..].iter().map(|x| x.parse::<f32>()).collect::<std::result::Result<_, _>>().with_context(|| format!("{}:{}", path.display(), n + 1))?;
+        let t: f64 = f[0].parse().with_context(|| format!("{}:{}", path.display(), n + 1))?;
+        out.entry(f[1].to_string()).or_default().push((t, Pose::new(Vec3::new(v[0], v[1], v[2]), Quat::from_xyzw(v[3], v[4], v[5], v[6]).normalize())));
+    }
+    Ok(out)
+}
+
+fn stats(errors: &[f32]) -> ErrorStats {
+    if errors.is_empty() {
+        return ErrorStats::default();
+    }
+    let mut sorted = errors.to_vec();
+    sorted.sort_by(f32::total_cmp);
+    let p95 = sorted[((sorted.len() as f32 * 0.95).ceil() as usize).clamp(1, sorted.len()) - 1];
+    ErrorStats { mean_mm: errors.iter().sum::<f32>() / errors.len() as f32 * 1e3, p95_mm: p95 * 1e3, final_mm: errors[errors.len() - 1] * 1e3 }
+}
+
+pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -> Result<Metrics> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let mut metrics = Metrics { recording: recording.display().to_string(), ..Default::default() };
+    let (messages, problem) = record::read_messages(recording)?;
+    if let Some(p) = problem {
+        eprintln!("warning: {p}; replaying what was read");
+        metrics.warnings.push(p);
+    }
+    let streams = parse(messages, &mut metrics.warnings)?;
+    if streams.cameras.is_empty() {
+        bail!("{} has no usable camera (needs images, CameraInfo and /tf_static)", recording.display());
+    }
+    metrics.cameras = streams.cameras.iter().map(|c| c.0.clone()).collect();
+    let scene_config = &config.scene;
+    let name = scene_config.scenario.as_deref().context("config scene.scenario is not set: replay builds its world from a built-in scenario until initialisation from cameras exists")?;
+    let offset = Pose::new(scene_config.offset_position, Quat::from_rotation_z(scene_config.offset_yaw));
+    let mut scene = scenario::build(name, offset)?;
+    // The robot follows the recorded joint states.
+    if let Some((robot, trajectory)) = &mut scene.robot {
+        let mut tracker = JointStateTracker::new(&robot.model);
+        let mut recorded = JointTrajectory::default();
+        for (t, js) in &streams.joint_states {
+            let report = tracker.update(&js.name, &js.position);
+            for unknown in report.new_unknown {
+                metrics.warnings.push(format!("joint state names unknown joint '{unknown}'"));
+            }
+            if !report.rejected_non_finite.is_empty() || !recorded.push(*t, tracker.positions.clone()) {
+                metrics.rejected_joint_states += 1;
+            }
+        }
+        if !recorded.is_empty() {
+            *trajectory = recorded;
+        } else {
+            metrics.warnings.push("no joint states: the robot holds its scenario motion".into());
+        }
+    }
+    let mut config = config.clone();
+    metrics.mode = match (opts.physics, opts.visual_forces) {
+        (true, true) => "physics + visual forces",
+        (true, false) => "physics only",
+        (false, true) => "visual forces only",
+        (false, false) => "neither (open loop, no physics)",
+    }
+    .into();
+    if !opts.physics {
+        config.physics.gravity = Vec3::ZERO;
+        config.physics.ground.enabled = false;
+        config.physics.collisions.enabled = false;
+    }
+    let t0 = streams.images.iter().filter_map(|s| s.first().map(|f| f.0)).fold(f64::INFINITY, f64::min);
+    let t_end = streams.images.iter().filter_map(|s| s.last().map(|f| f.0)).fold(f64::NEG_INFINITY, f64::max);
+    scene.world.time = t0;
+    let mut tracker = Tracker::new(scene, &config, opts.visual_forces)?;
+    let dt = config.physics.dt as f64;
+    let ticks = ((t_end - t0) / dt + 1e-6).floor().max(0.0) as usize;
+    let truth = {
+        let path = recording.with_file_name("ground_truth.csv");
+        if path.is_file() { Some(read_ground_truth(&path)?) } else { None }
+    };
+    let mut writer = TrajectoryWriter::create(&out.join("objects.csv"))?;
+    writer.record(&tracker.scene.world)?;
+    let mut errors: BTreeMap<String, Vec<f32>> = BTreeMap::new();
+    let mut cursor = vec![0usize; streams.cameras.len()];
+    let mut latest: Vec<Option<Vec<Vec3>>> = vec![None; streams.cameras.len()];
+    let progress = if opts.progress { indicatif::ProgressBar::new(ticks as u64) } else { indicatif::ProgressBar::hidden() };
+    let mut loss_sum = 0.0f32;
+    let clock = std::time::Instant::now();
+    for k in 1..=ticks {
+        let t = t0 + k as f64 * dt;
+        for (c, stream) in streams.images.iter().enumerate() {
+            while cursor[c] < stream.len() && stream[cursor[c]].0 <= t + 1e-6 {
+                match decode_image(&stream[cursor[c]].1, &streams.cameras[c].1) {
+                    Ok(img) => latest[c] = Some(img),
+                    Err(why) => {
+                        metrics.rejected_images += 1;
+                        if metrics.rejected_images <= 10 {
+                            metrics.warnings.push(format!("camera {} at {:.3} s: {why}", streams.cameras[c].0, stream[cursor[c]].0));
+                        }
+                    }
+                }
+                cursor[c] += 1;
+            }
+        }
+        let views: Vec<View> = streams.cameras.iter().zip(&latest).filter_map(|((_, cam), img)| img.as_ref().map(|i| View { camera: *cam, image: i })).collect();
+        if let Some(s) = tracker.tick(&views)? {
+            loss_sum += s.loss_before;
+        }
+        writer.record(&tracker.scene.world)?;
+        if let Some(truth) = &truth {
+            let w = &tracker.scene.world;
+            for s in w.shapes.dynamic_ids() {
+                let name = &w.shapes.name[s as usize];
+                let Some(track) = truth.get(name) else { continue };
+                let i = track.partition_point(|(ts, _)| *ts < t - 1e-6).min(track.len() - 1);
+                let pose = track[i].1;
+                let range = w.shapes.range(s);
+                let n = range.len() as f32;
+                let e = range.map(|p| pose.transform_point(w.particles.rest[p]).distance(w.particles.position[p])).sum::<f32>() / n;
+                errors.entry(name.clone()).or_default().push(e);
+            }
+        }
+        progress.inc(1);
+    }
+    progress.finish_and_clear();
+    writer.finish()?;
+    metrics.ticks = ticks;
+    metrics.seconds = ticks as f64 * dt;
+    metrics.wall_ms_per_tick = clock.elapsed().as_secs_f64() * 1e3 / ticks.max(1) as f64;
+    metrics.mean_loss = loss_sum / ticks.max(1) as f32;
+    metrics.tracking_error = errors.iter().map(|(k, v)| (k.clone(), stats(v))).collect();
+    std::fs::write(out.join("metrics.json"), serde_json::to_string_pretty(&metrics)?)?;
+    Ok(metrics)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::Pose;
+
+    #[test]
+    fn bgr_and_rgb_decode_to_the_same_colours_and_bad_images_are_explained() {
+        let cam = Camera { width: 2, height: 1, fx: 1.0, fy: 1.0, cx: 1.0, cy: 0.5, world_to_camera: Pose::IDENTITY };
+        let rgb = Image { width: 2, height: 1, encoding: "rgb8".into(), step: 6, data: vec![255, 0, 0, 0, 0, 255], ..Default::default() };
+        let bgr = Image { encoding: "bgr8".into(), data: vec![0, 0, 255, 255, 0, 0], ..rgb.clone() };
+        assert_eq!(decode_image(&rgb, &cam).unwrap(), vec![Vec3::X, Vec3::Z]);
+        assert_eq!(decode_image(&bgr, &cam).unwrap(), vec![Vec3::X, Vec3::Z]);
+        assert!(decode_image(&Image { encoding: "mono16".into(), ..rgb.clone() }, &cam).unwrap_err().contains("mono16"));
+        assert!(decode_image(&Image { width: 3, ..rgb.clone() }, &cam).unwrap_err().contains("CameraInfo"));
+        assert!(decode_image(&Image { data: vec![1, 2], ..rgb }, &cam).unwrap_err().contains("too short"));
+    }
+}
