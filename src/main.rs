@@ -49,6 +49,9 @@ enum Command {
         /// Visual forces only: no gravity, ground or collisions.
         #[arg(long)]
         no_physics: bool,
+        /// Also replay physics-only and visual-forces-only and report the error ratios.
+        #[arg(long, conflicts_with_all = ["no_visual_forces", "no_physics"])]
+        compare: bool,
     },
 }
 
@@ -56,6 +59,18 @@ enum Command {
 enum ScenarioCommand {
     /// List the scenarios.
     List,
+    /// Generate every scenario, replay each with --compare, and print a Markdown table of the
+    /// tracking errors; with --readme, write it between the scenario-table markers of that file.
+    Table {
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 320)]
+        width: u32,
+        #[arg(long, default_value_t = 180)]
+        height: u32,
+        #[arg(long)]
+        readme: Option<PathBuf>,
+    },
     /// Simulate a scenario and write DIR/recording.mcap, DIR/ground_truth.csv and DIR/config.yaml.
     Generate {
         name: String,
@@ -177,6 +192,14 @@ fn main() -> Result<()> {
                 }
             }
         }
+        Command::Scenario { what: ScenarioCommand::Table { out, width, height, readme } } => {
+            let table = pegs::scenario::table::run(&out, width, height)?;
+            println!("{table}");
+            if let Some(path) = readme {
+                pegs::scenario::table::write_into(&path, &table)?;
+                println!("updated {}", path.display());
+            }
+        }
         Command::Scenario { what: ScenarioCommand::List } => {
             for n in pegs::scenario::NAMES {
                 println!("{n}");
@@ -194,13 +217,19 @@ fn main() -> Result<()> {
             pegs::scenario::generate::generate(&name, &out, &opts)?;
             println!("wrote {0}/recording.mcap, {0}/ground_truth.csv and {0}/config.yaml", out.display());
         }
-        Command::Replay { recording, config, out, no_visual_forces, no_physics } => {
+        Command::Replay { recording, config, out, no_visual_forces, no_physics, compare } => {
             let config = Config::load(&config)?;
             let opts = pegs::replay::ReplayOptions { visual_forces: !no_visual_forces, physics: !no_physics, progress: true };
-            let m = pegs::replay::run(&recording, &config, &out, opts)?;
+            let m = if compare { pegs::replay::run_compare(&recording, &config, &out, true)? } else { pegs::replay::run(&recording, &config, &out, opts)? };
             println!("replayed {} ticks ({:.1} s) from cameras {:?} [{}], {:.1} ms per tick", m.ticks, m.seconds, m.cameras, m.mode, m.wall_ms_per_tick);
             for (object, e) in &m.tracking_error {
                 println!("  {object}: tracking error mean {:.2} mm, p95 {:.2} mm, final {:.2} mm", e.mean_mm, e.p95_mm, e.final_mm);
+            }
+            for (object, c) in &m.comparison {
+                println!(
+                    "  {object}: physics only {:.2} mm, visual forces only {:.2} mm (ratios {:.2} / {:.2})",
+                    c.physics_only_mean_mm, c.visual_forces_only_mean_mm, c.ratio_to_physics_only, c.ratio_to_visual_forces_only
+                );
             }
             if m.rejected_images + m.rejected_joint_states > 0 {
                 println!("  rejected {} images and {} joint states (see metrics.json warnings)", m.rejected_images, m.rejected_joint_states);

@@ -54,6 +54,36 @@ pub struct Metrics {
     pub warnings: Vec<String>,
     /// 3-D tracking error per object against `ground_truth.csv` beside the recording, if any.
     pub tracking_error: BTreeMap<String, ErrorStats>,
+    /// With `--compare`: the same recording replayed physics-only and visual-forces-only.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub comparison: BTreeMap<String, Comparison>,
+}
+
+/// Mean tracking errors of the ablated runs and this run's error as a fraction of theirs.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Comparison {
+    pub physics_only_mean_mm: f32,
+    pub visual_forces_only_mean_mm: f32,
+    pub ratio_to_physics_only: f32,
+    pub ratio_to_visual_forces_only: f32,
+}
+
+/// Replay with both priors and visual forces, then physics-only and visual-forces-only (into
+/// `out/physics_only` and `out/visual_forces_only`), and record the comparison in `out/metrics.json`.
+pub fn run_compare(recording: &Path, config: &Config, out: &Path, progress: bool) -> Result<Metrics> {
+    let mut main = run(recording, config, out, ReplayOptions { progress, ..Default::default() })?;
+    let physics = run(recording, config, &out.join("physics_only"), ReplayOptions { visual_forces: false, physics: true, progress })?;
+    let visual = run(recording, config, &out.join("visual_forces_only"), ReplayOptions { visual_forces: true, physics: false, progress })?;
+    for (object, e) in &main.tracking_error {
+        let p = physics.tracking_error.get(object).map_or(f32::NAN, |e| e.mean_mm);
+        let v = visual.tracking_error.get(object).map_or(f32::NAN, |e| e.mean_mm);
+        main.comparison.insert(
+            object.clone(),
+            Comparison { physics_only_mean_mm: p, visual_forces_only_mean_mm: v, ratio_to_physics_only: e.mean_mm / p, ratio_to_visual_forces_only: e.mean_mm / v },
+        );
+    }
+    std::fs::write(out.join("metrics.json"), serde_json::to_string_pretty(&main)?)?;
+    Ok(main)
 }
 
 /// A recording's content sorted for replay.

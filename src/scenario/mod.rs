@@ -13,6 +13,7 @@ use crate::world::World;
 use anyhow::{Context, Result, bail};
 
 pub mod generate;
+pub mod table;
 use glam::{DVec3, Quat, Vec3, Vec4};
 
 pub const NAMES: [&str; 3] = ["resting_box", "pushed_box", "pushed_tblock"];
