@@ -16,11 +16,15 @@ pub mod generate;
 pub mod table;
 use glam::{DVec3, Quat, Vec3, Vec4};
 
-pub const NAMES: [&str; 3] = ["resting_box", "pushed_box", "pushed_tblock"];
+pub const NAMES: [&str; 4] = ["resting_box", "pushed_box", "pushed_tblock", "two_boxes"];
 
-/// The tracked object of scenario `name`.
-pub fn object_name(name: &str) -> &'static str {
-    if name.contains("tblock") { "tblock" } else { "box" }
+/// The tracked objects of scenario `name`.
+pub fn object_names(name: &str) -> &'static [&'static str] {
+    match name {
+        n if n.contains("tblock") => &["tblock"],
+        "two_boxes" => &["box", "box2"],
+        _ => &["box"],
+    }
 }
 
 /// Particle radius and mass of scenario objects.
@@ -58,7 +62,7 @@ pub fn cameras(width: u32, height: u32) -> Vec<Camera> {
 pub fn build(name: &str, offset: Pose) -> Result<Scene> {
     let mut b = WorldBuilder::new();
     add_table(&mut b);
-    if object_name(name) == "tblock" {
+    if object_names(name) == ["tblock"] {
         // The push-T block of the paper's real scenes: 20 x 20 cm, 3 cm thick, orange.
         let rest = Pose::new(Vec3::new(0.5, 0.0, R + 2.0 * R), Quat::from_rotation_z(0.35));
         let start = Pose::new(rest.translation + offset.translation, offset.rotation * rest.rotation);
@@ -72,13 +76,21 @@ pub fn build(name: &str, offset: Pose) -> Result<Scene> {
         let bx = b.add_rigid("box", &box_lattice(half, 2.0 * R), R, MASS, start, Vec3::new(0.15, 0.35, 0.9));
         b.set_gaussian_look(bx, R, 0.97);
         b.paint(bx, |p| if p.x > 0.02 { Some(Vec3::new(0.95, 0.8, 0.1)) } else { None });
+        if name == "two_boxes" {
+            // A second, 8 x 8 x 5 cm red box with a white end, in the first one's path.
+            let rest = Pose::new(Vec3::new(0.51, 0.13, R + 2.0 * 2.0 * R), Quat::from_rotation_z(-0.3));
+            let start = Pose::new(rest.translation + offset.translation, offset.rotation * rest.rotation);
+            let b2 = b.add_rigid("box2", &box_lattice(Vec3::new(0.04, 0.04, 0.025), 2.0 * R), R, MASS, start, Vec3::new(0.85, 0.15, 0.15));
+            b.set_gaussian_look(b2, R, 0.97);
+            b.paint(b2, |p| if p.y > 0.02 { Some(Vec3::splat(0.9)) } else { None });
+        }
     }
     let model = builtin::panda_pusher()?;
     let waypoints: Vec<(f64, DVec3)> = match name {
         // The robot parks away from the box.
         "resting_box" => vec![(0.0, DVec3::new(0.3, -0.3, 0.2))],
         // The rod comes down behind the box and pushes it 15 cm along +y.
-        "pushed_box" => vec![(0.0, DVec3::new(0.5, -0.16, 0.12)), (0.5, DVec3::new(0.5, -0.16, 0.02)), (3.5, DVec3::new(0.5, 0.1, 0.02)), (4.0, DVec3::new(0.5, 0.1, 0.12))],
+        "pushed_box" | "two_boxes" => vec![(0.0, DVec3::new(0.5, -0.16, 0.12)), (0.5, DVec3::new(0.5, -0.16, 0.02)), (3.5, DVec3::new(0.5, 0.1, 0.02)), (4.0, DVec3::new(0.5, 0.1, 0.12))],
         // The rod comes down behind the stem and pushes the T 15 cm along +y, turning it.
         "pushed_tblock" => vec![(0.0, DVec3::new(0.5, -0.22, 0.12)), (0.5, DVec3::new(0.5, -0.22, 0.015)), (3.5, DVec3::new(0.5, 0.04, 0.015)), (4.0, DVec3::new(0.5, 0.04, 0.12))],
         other => bail!("unknown scenario '{other}' (known: {})", NAMES.join(", ")),
