@@ -113,3 +113,13 @@ fn key_less(a: u32, b: u32) -> bool {
     let db = bitcast<u32>(projected[b].mean_depth_radius.z) & 0xFFFFFF00u;
     return da < db || (da == db && a < b);
 }
+
+// Rotation matrix (columns) of a unit quaternion x, y, z, w.
+fn rotation_matrix(q: vec4<f32>) -> mat3x3<f32> {
+    let x = q.x; let y = q.y; let z = q.z; let w = q.w;
+    return mat3x3<f32>(
+        vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
+        vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
+        vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
+    );
+}

@@ -2,15 +2,6 @@
 // sorted list), sum the partial gradients in tile order, then chain through the projection
 // (the same maths as project_backward in src/render/project.rs).
 
-fn rotation_matrix(q: vec4<f32>) -> mat3x3<f32> {
-    let x = q.x; let y = q.y; let z = q.z; let w = q.w;
-    return mat3x3<f32>(
-        vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
-        vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
-        vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
-    );
-}
-
 fn outer(a: vec3<f32>, b: vec3<f32>) -> mat3x3<f32> {
     return mat3x3<f32>(a * b.x, a * b.y, a * b.z);
 }

@@ -4,15 +4,6 @@ fn sigmoid(x: f32) -> f32 {
     return 1.0 / (1.0 + exp(-x));
 }
 
-fn rotation_matrix(q: vec4<f32>) -> mat3x3<f32> {
-    let x = q.x; let y = q.y; let z = q.z; let w = q.w;
-    return mat3x3<f32>(
-        vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
-        vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
-        vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
-    );
-}
-
 @compute @workgroup_size(256)
 fn project(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;

@@ -4,6 +4,18 @@
 
 var<workgroup> count_shared: u32;
 
+// Put the smaller key of entries a < b first; entries at or past n are virtual +infinity.
+fn compare_swap(start: u32, a: u32, b: u32, n: u32) {
+    if (b < n) {
+        let ga = pairs[start + a];
+        let gb = pairs[start + b];
+        if (key_less(gb, ga)) {
+            pairs[start + a] = gb;
+            pairs[start + b] = ga;
+        }
+    }
+}
+
 @compute @workgroup_size(256)
 fn sort_tiles(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let t = wg.y * params.tiles.z + wg.x;
@@ -22,14 +34,7 @@ fn sort_tiles(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_in
         for (var i = lid; i < np / 2u; i += 256u) {
             let a = (i / half_k) * k + (i % half_k);
             let b = (i / half_k) * k + k - 1u - (i % half_k);
-            if (b < n) {
-                let ga = pairs[start + a];
-                let gb = pairs[start + b];
-                if (key_less(gb, ga)) {
-                    pairs[start + a] = gb;
-                    pairs[start + b] = ga;
-                }
-            }
+            compare_swap(start, a, b, n);
         }
         storageBarrier();
         workgroupBarrier();
@@ -38,14 +43,7 @@ fn sort_tiles(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_in
             for (var i = lid; i < np / 2u; i += 256u) {
                 let a = (i / j) * 2u * j + (i % j);
                 let b = a + j;
-                if (b < n) {
-                    let ga = pairs[start + a];
-                    let gb = pairs[start + b];
-                    if (key_less(gb, ga)) {
-                        pairs[start + a] = gb;
-                        pairs[start + b] = ga;
-                    }
-                }
+                compare_swap(start, a, b, n);
             }
             storageBarrier();
             workgroupBarrier();
