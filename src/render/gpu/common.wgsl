@@ -123,3 +123,45 @@ fn rotation_matrix(q: vec4<f32>) -> mat3x3<f32> {
         vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
     );
 }
+
+// The intermediate quantities of the EWA projection, as `forward_intermediate` in project.rs.
+// Callers check validity: t.z >= near, qn > 0, and a positive 2-D determinant.
+struct Ewa {
+    w: mat3x3<f32>,
+    t: vec3<f32>,
+    // x/z, y/z before and after the field-of-view clamp
+    raw: vec2<f32>,
+    u: vec2<f32>,
+    j0: vec3<f32>,
+    j1: vec3<f32>,
+    q: vec4<f32>,
+    qn: f32,
+    r: mat3x3<f32>,
+    // variances along the Gaussian's own axes
+    d: vec3<f32>,
+    // camera-frame 3-D covariance
+    m: mat3x3<f32>,
+    // 2-D covariance entries A, B, C with the blur
+    abc: vec3<f32>,
+}
+
+fn ewa(g: Gaussian) -> Ewa {
+    var e: Ewa;
+    e.w = mat3x3<f32>(params.rot0.xyz, params.rot1.xyz, params.rot2.xyz);
+    e.t = e.w * g.mean_opacity.xyz + params.trans.xyz;
+    let fx = params.intr.x; let fy = params.intr.y;
+    let lim = vec2<f32>(1.3 * f32(params.size.x) / (2.0 * fx), 1.3 * f32(params.size.y) / (2.0 * fy));
+    e.raw = vec2<f32>(e.t.x / e.t.z, e.t.y / e.t.z);
+    e.u = clamp(e.raw, -lim, lim);
+    e.j0 = vec3<f32>(fx / e.t.z, 0.0, -fx * e.u.x / e.t.z);
+    e.j1 = vec3<f32>(0.0, fy / e.t.z, -fy * e.u.y / e.t.z);
+    e.qn = length(g.rotation);
+    e.q = g.rotation / e.qn;
+    e.r = rotation_matrix(e.q);
+    e.d = exp(2.0 * g.log_scale.xyz);
+    let sigma = e.r * mat3x3<f32>(vec3<f32>(e.d.x, 0.0, 0.0), vec3<f32>(0.0, e.d.y, 0.0), vec3<f32>(0.0, 0.0, e.d.z)) * transpose(e.r);
+    e.m = e.w * sigma * transpose(e.w);
+    let blur = params.background.w;
+    e.abc = vec3<f32>(dot(e.j0, e.m * e.j0) + blur, dot(e.j0, e.m * e.j1), dot(e.j1, e.m * e.j1) + blur);
+    return e;
+}

@@ -14,30 +14,16 @@ fn project(@builtin(global_invocation_id) gid: vec3<u32>) {
     out.colour_valid = vec4<f32>(0.0);
     rects[i] = vec4<u32>(0u);
     let g = gaussians[i];
-    let w = mat3x3<f32>(params.rot0.xyz, params.rot1.xyz, params.rot2.xyz);
-    let t = w * g.mean_opacity.xyz + params.trans.xyz;
+    let e = ewa(g);
+    let t = e.t;
     let fx = params.intr.x; let fy = params.intr.y;
-    if (!(t.z >= params.cut.x)) {
+    if (!(t.z >= params.cut.x) || !(e.qn > 1e-12)) {
         projected[i] = out;
         return;
     }
-    let lim = vec2<f32>(1.3 * f32(params.size.x) / (2.0 * fx), 1.3 * f32(params.size.y) / (2.0 * fy));
-    let u = clamp(vec2<f32>(t.x / t.z, t.y / t.z), -lim, lim);
-    let j0 = vec3<f32>(fx / t.z, 0.0, -fx * u.x / t.z);
-    let j1 = vec3<f32>(0.0, fy / t.z, -fy * u.y / t.z);
-    let qn = length(g.rotation);
-    if (!(qn > 1e-12)) {
-        projected[i] = out;
-        return;
-    }
-    let r = rotation_matrix(g.rotation / qn);
-    let d = exp(2.0 * g.log_scale.xyz);
-    let sigma = r * mat3x3<f32>(vec3<f32>(d.x, 0.0, 0.0), vec3<f32>(0.0, d.y, 0.0), vec3<f32>(0.0, 0.0, d.z)) * transpose(r);
-    let m = w * sigma * transpose(w);
-    let blur = params.background.w;
-    let a = dot(j0, m * j0) + blur;
-    let b = dot(j0, m * j1);
-    let c = dot(j1, m * j1) + blur;
+    let a = e.abc.x;
+    let b = e.abc.y;
+    let c = e.abc.z;
     let det = a * c - b * b;
     if (!(det > 0.0)) {
         projected[i] = out;
