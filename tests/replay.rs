@@ -82,3 +82,33 @@ fn replay_without_a_scene_is_a_clear_error() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("scene.scenario") && !err.contains("panicked"), "{err}");
 }
+
+#[test]
+fn a_camera_that_stops_publishing_drops_out_and_is_reported() {
+    // Rewrite a recording without cam1's images after 0.5 s.
+    let scn = scratch("stop");
+    pegs(&["scenario", "generate", "resting_box", "--out", scn.to_str().unwrap(), "--width", "160", "--height", "90", "--seconds", "1.5"]);
+    let (messages, problem) = pegs::record::read_messages(&scn.join("recording.mcap")).unwrap();
+    assert!(problem.is_none());
+    let cut = scn.join("cam1_stops.mcap");
+    let mut w = pegs::record::RecordingWriter::create(&cut).unwrap();
+    let schemas = [pegs::msgs::schema::image(), pegs::msgs::schema::camera_info(), pegs::msgs::schema::joint_state(), pegs::msgs::schema::tf_message()];
+    for m in &messages {
+        if m.topic == "/cam1/color/image_raw" && m.time > 0.5 {
+            continue;
+        }
+        let schema = schemas.iter().find(|s| s.0 == m.schema).unwrap().clone();
+        w.write_raw(&m.topic, schema, m.time, &m.data).unwrap();
+    }
+    w.finish().unwrap();
+    let out = scratch("stop-out");
+    let m = replay(&cut, &scn.join("config.yaml"), &out, &[]);
+    let stale = m["stale_camera_ticks"]["cam1"].as_u64().unwrap();
+    // cam1's last image is the one at 14/30 s (0.5 s itself is f32-rounded just past the cut), so
+    // it is more than 0.5 s old from about 0.97 s on: ticks 29..=45, give or take rounding.
+    assert!((15..=18).contains(&stale), "cam1 should be stale from about 0.97 s on: {stale} ticks");
+    assert!(m["stale_camera_ticks"].get("cam0").is_none());
+    assert!(m["warnings"].as_array().unwrap().iter().any(|w| w.as_str().unwrap().contains("cam1")));
+    assert_eq!(m["ticks"], 45, "the replay continues to the end with the other cameras");
+    assert!(m["tracking_error"]["box"]["final_mm"].as_f64().unwrap() < 10.0, "and keeps tracking");
+}

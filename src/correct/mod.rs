@@ -39,6 +39,9 @@ pub struct CorrectConfig {
     pub damping: f32,
     /// Displacements shorter than this (m) are ignored.
     pub min_displacement: f32,
+    /// Images older than this (s) at a tick are not used: a camera that stopped publishing drops
+    /// out instead of pulling the objects towards where they were.
+    pub max_image_age: f32,
     /// Render only the window around the tracked objects' footprint (plus this margin, px).
     pub use_roi: bool,
     pub roi_margin_px: f32,
@@ -73,6 +76,7 @@ impl Default for CorrectConfig {
             gain: 1.5,
             damping: 0.05,
             min_displacement: 1e-4,
+            max_image_age: 0.5,
             use_roi: true,
             roi_margin_px: 12.0,
         }
@@ -81,7 +85,7 @@ impl Default for CorrectConfig {
 
 impl CorrectConfig {
     pub fn validate(&self) -> Result<()> {
-        for (name, v) in [("lr_mean", self.lr_mean), ("lr_rotation", self.lr_rotation), ("lr_colour", self.lr_colour), ("lr_opacity", self.lr_opacity), ("gain", self.gain), ("damping", self.damping), ("min_displacement", self.min_displacement), ("roi_margin_px", self.roi_margin_px)] {
+        for (name, v) in [("lr_mean", self.lr_mean), ("lr_rotation", self.lr_rotation), ("lr_colour", self.lr_colour), ("lr_opacity", self.lr_opacity), ("gain", self.gain), ("damping", self.damping), ("min_displacement", self.min_displacement), ("max_image_age", self.max_image_age), ("roi_margin_px", self.roi_margin_px)] {
             if !(v.is_finite() && v >= 0.0) {
                 bail!("correct.{name} must be finite and >= 0, got {v}");
             }

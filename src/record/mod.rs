@@ -42,6 +42,11 @@ impl RecordingWriter {
 
     /// Write `msg` on `topic` (schema `(type name, ros2msg text)`), stamped `stamp`.
     pub fn write<T: Serialize>(&mut self, topic: &str, schema: (&str, String), stamp: Time, msg: &T) -> Result<()> {
+        self.write_raw(topic, schema, stamp.seconds(), &msgs::to_cdr(msg)?)
+    }
+
+    /// Write an already encoded CDR payload (e.g. copied from another recording) at `time` (s).
+    pub fn write_raw(&mut self, topic: &str, schema: (&str, String), time: f64, cdr: &[u8]) -> Result<()> {
         let channel = match self.channels.get(topic) {
             Some(&c) => c,
             None => {
@@ -52,9 +57,9 @@ impl RecordingWriter {
             }
         };
         self.sequence += 1;
-        let t = stamp.nanoseconds();
+        let t = Time::from_seconds(time).nanoseconds();
         let header = mcap::records::MessageHeader { channel_id: channel, sequence: self.sequence, log_time: t, publish_time: t };
-        self.writer.write_to_known_channel(&header, &msgs::to_cdr(msg)?)?;
+        self.writer.write_to_known_channel(&header, cdr)?;
         Ok(())
     }
 

@@ -50,6 +50,8 @@ pub struct Metrics {
     pub wall_ms_per_tick: f64,
     pub mean_loss: f32,
     pub rejected_images: usize,
+    /// Ticks at which a camera's newest image was too old to use, per camera.
+    pub stale_camera_ticks: BTreeMap<String, usize>,
     pub rejected_joint_states: usize,
     pub warnings: Vec<String>,
     /// 3-D tracking error per object against `ground_truth.csv` beside the recording, if any.
@@ -272,7 +274,8 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     writer.record(&tracker.scene.world)?;
     let mut errors: BTreeMap<String, Vec<f32>> = BTreeMap::new();
     let mut cursor = vec![0usize; streams.cameras.len()];
-    let mut latest: Vec<Option<Vec<Vec3>>> = vec![None; streams.cameras.len()];
+    let mut latest: Vec<Option<(f64, Vec<Vec3>)>> = vec![None; streams.cameras.len()];
+    let max_age = config.correct.max_image_age as f64;
     let progress = if opts.progress { indicatif::ProgressBar::new(ticks as u64) } else { indicatif::ProgressBar::hidden() };
     let mut loss_sum = 0.0f32;
     let clock = std::time::Instant::now();
@@ -281,7 +284,7 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         for (c, stream) in streams.images.iter().enumerate() {
             while cursor[c] < stream.len() && stream[cursor[c]].0 <= t + 1e-6 {
                 match decode_image(&stream[cursor[c]].1, &streams.cameras[c].1) {
-                    Ok(img) => latest[c] = Some(img),
+                    Ok(img) => latest[c] = Some((stream[cursor[c]].0, img)),
                     Err(why) => {
                         metrics.rejected_images += 1;
                         if metrics.rejected_images <= 10 {
@@ -292,7 +295,22 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
                 cursor[c] += 1;
             }
         }
-        let views: Vec<View> = streams.cameras.iter().zip(&latest).filter_map(|((_, cam), img)| img.as_ref().map(|i| View { camera: *cam, image: i })).collect();
+        let mut views: Vec<View> = Vec::with_capacity(latest.len());
+        for ((name, cam), img) in streams.cameras.iter().zip(&latest) {
+            match img {
+                Some((stamp, pixels)) if t - stamp <= max_age => views.push(View { camera: *cam, image: pixels }),
+                Some((stamp, _)) => {
+                    let n = metrics.stale_camera_ticks.entry(name.clone()).or_insert(0);
+                    if *n == 0 {
+                        let line = format!("camera {name}: no image since {stamp:.3} s (at {t:.3} s); continuing with the other cameras");
+                        eprintln!("warning: {line}");
+                        metrics.warnings.push(line);
+                    }
+                    *n += 1;
+                }
+                None => {}
+            }
+        }
         if let Some(s) = tracker.tick(&views)? {
             loss_sum += s.loss_before;
         }
