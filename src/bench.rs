@@ -286,7 +286,7 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
         let mut config = Config::default();
         config.correct.backend = backend;
         for &(w, h) in resolutions {
-            let cameras = scenario::cameras(w, h);
+            let cameras = scenario::cameras(scenario_name, w, h);
             let mut truth = Tracker::new(scenario::build(scenario_name, crate::math::Pose::IDENTITY)?, &config, false)?;
             let mut model = match Tracker::new(scenario::build(scenario_name, crate::math::Pose::IDENTITY)?, &config, true) {
                 Ok(m) => m,

@@ -5,6 +5,7 @@
 //! The modules follow the loop: `world` (plain data) -> `physics` (predict) -> ... Scenes are
 //! built in `scene`; `config` holds every number; `demo` and `bench` are the command-line jobs.
 
+pub mod ablation;
 pub mod bench;
 pub mod config;
 pub mod correct;

@@ -52,7 +52,45 @@ enum Command {
         /// Also replay physics-only and visual-forces-only and report the error ratios.
         #[arg(long, conflicts_with_all = ["no_visual_forces", "no_physics"])]
         compare: bool,
+        /// Use only the first N cameras (by name).
+        #[arg(long)]
+        cameras: Option<usize>,
     },
+    /// Reproduce the supplementary's ablations on synthetic scenarios: PNG plots of tracking
+    /// error over time per ablation and OUT/summary.md. Lists are comma-separated.
+    Ablate {
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, value_delimiter = ',', default_values_t = ["two_boxes".to_string(), "pushed_tblock".to_string()])]
+        scenarios: Vec<String>,
+        /// Resolution of every run outside the resolution ablation, WxH.
+        #[arg(long, default_value = "320x180", value_parser = parse_resolution)]
+        base: (u32, u32),
+        #[arg(long, default_value_t = 4.5)]
+        seconds: f64,
+        #[arg(long, value_delimiter = ',', value_parser = parse_resolution, default_values = ["1280x720", "640x360", "320x180", "160x90"])]
+        resolutions: Vec<(u32, u32)>,
+        #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 3])]
+        cameras: Vec<usize>,
+        #[arg(long, value_delimiter = ',', default_values_t = [0.5, 1.0, 1.5, 3.0, 6.0])]
+        gains: Vec<f32>,
+        #[arg(long, value_delimiter = ',', default_values_t = [0.0005, 0.0015, 0.005, 0.015])]
+        learning_rates: Vec<f32>,
+        #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 5, 10])]
+        iterations: Vec<u32>,
+        /// Also write the summary table into this Markdown file between its ablation markers.
+        #[arg(long)]
+        readme: Option<PathBuf>,
+    },
+}
+
+fn parse_resolution(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s.split_once('x').ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT"))?;
+    let (w, h) = (w.parse::<u32>().map_err(|e| format!("{s}: {e}"))?, h.parse::<u32>().map_err(|e| format!("{s}: {e}"))?);
+    if w == 0 || h == 0 {
+        return Err(format!("{s}: empty image"));
+    }
+    Ok((w, h))
 }
 
 #[derive(Subcommand)]
@@ -202,7 +240,7 @@ fn main() -> Result<()> {
         }
         Command::Scenario { what: ScenarioCommand::List } => {
             for n in pegs::scenario::NAMES {
-                println!("{n}");
+                println!("{n:<20} {}", pegs::scenario::description(n));
             }
         }
         Command::Scenario { what: ScenarioCommand::Generate { name, out, width, height, seconds, offset, offset_yaw_deg } } => {
@@ -217,9 +255,20 @@ fn main() -> Result<()> {
             pegs::scenario::generate::generate(&name, &out, &opts)?;
             println!("wrote {0}/recording.mcap, {0}/ground_truth.csv and {0}/config.yaml", out.display());
         }
-        Command::Replay { recording, config, out, no_visual_forces, no_physics, compare } => {
+        Command::Ablate { out, scenarios, base, seconds, resolutions, cameras, gains, learning_rates, iterations, readme } => {
+            let opts = pegs::ablation::SweepOptions { scenarios, base, seconds, resolutions, cameras, gains, learning_rates, iterations };
+            let rows = pegs::ablation::run(&opts, &out)?;
+            let table = pegs::ablation::summary_table(&rows);
+            println!("{table}");
+            println!("plots and runs in {}", out.display());
+            if let Some(path) = readme {
+                pegs::scenario::table::write_between(&path, pegs::ablation::START, pegs::ablation::END, &table)?;
+                println!("updated {}", path.display());
+            }
+        }
+        Command::Replay { recording, config, out, no_visual_forces, no_physics, compare, cameras } => {
             let config = Config::load(&config)?;
-            let opts = pegs::replay::ReplayOptions { visual_forces: !no_visual_forces, physics: !no_physics, progress: true };
+            let opts = pegs::replay::ReplayOptions { visual_forces: !no_visual_forces, physics: !no_physics, progress: true, max_cameras: cameras };
             let m = if compare { pegs::replay::run_compare(&recording, &config, &out, true)? } else { pegs::replay::run(&recording, &config, &out, opts)? };
             println!("replayed {} ticks ({:.1} s) from cameras {:?} [{}], {:.1} ms per tick", m.ticks, m.seconds, m.cameras, m.mode, m.wall_ms_per_tick);
             for (object, e) in &m.tracking_error {

@@ -38,3 +38,35 @@ impl TrajectoryWriter {
         self.out.flush().context("cannot write trajectory")
     }
 }
+
+/// Particle positions of deformable objects (ropes), whose pose alone does not say where their
+/// material points are: `t,object,particle,x,y,z`, particle numbered within its object.
+pub const PARTICLE_HEADER: &str = "t,object,particle,x,y,z";
+
+pub struct ParticleWriter {
+    out: std::io::BufWriter<std::fs::File>,
+}
+
+impl ParticleWriter {
+    pub fn create(path: &Path) -> Result<Self> {
+        let file = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+        let mut out = std::io::BufWriter::new(file);
+        writeln!(out, "{PARTICLE_HEADER}")?;
+        Ok(Self { out })
+    }
+
+    /// Append every rope particle at the world's current time.
+    pub fn record(&mut self, world: &World) -> Result<()> {
+        for s in world.shapes.dynamic_ids().filter(|&s| world.shapes.kind[s as usize] == crate::world::ShapeKind::Rope) {
+            for (k, i) in world.shapes.range(s).enumerate() {
+                let p = world.particles.position[i];
+                writeln!(self.out, "{:.6},{},{k},{:.6},{:.6},{:.6}", world.time, world.shapes.name[s as usize], p.x, p.y, p.z)?;
+            }
+        }
+        Ok(())
+    }
+
+    pub fn finish(mut self) -> Result<()> {
+        self.out.flush().context("cannot write particle trajectory")
+    }
+}

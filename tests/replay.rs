@@ -112,3 +112,45 @@ fn a_camera_that_stops_publishing_drops_out_and_is_reported() {
     assert_eq!(m["ticks"], 45, "the replay continues to the end with the other cameras");
     assert!(m["tracking_error"]["box"]["final_mm"].as_f64().unwrap() < 10.0, "and keeps tracking");
 }
+
+#[test]
+fn a_rope_is_measured_against_its_true_particles_and_fewer_cameras_can_be_chosen() {
+    let scn = scratch("rope");
+    pegs(&["scenario", "generate", "dragged_rope", "--out", scn.to_str().unwrap(), "--width", "160", "--height", "90", "--seconds", "1"]);
+    let truth = std::fs::read_to_string(scn.join("ground_truth_particles.csv")).unwrap();
+    assert_eq!(truth.lines().next(), Some("t,object,particle,x,y,z"));
+    assert_eq!(truth.lines().count() - 1, 31 * 30, "30 rope particles per frame, 31 frames");
+    let (rec, cfg) = (scn.join("recording.mcap"), scn.join("config.yaml"));
+    let (all, one) = (scratch("rope-all"), scratch("rope-one"));
+    let m = replay(&rec, &cfg, &all, &[]);
+    // Started 1 cm / 5 deg off its true shape: the particle-wise error says so at the start.
+    let series = std::fs::read_to_string(all.join("tracking_error.csv")).unwrap();
+    let first: f64 = series.lines().nth(1).unwrap().split(',').nth(2).unwrap().parse().unwrap();
+    assert!((8.0..15.0).contains(&first), "first error {first} mm");
+    assert!(m["tracking_error"]["rope"]["mean_mm"].as_f64().unwrap() > 0.0);
+    let m1 = replay(&rec, &cfg, &one, &["--cameras", "1"]);
+    assert_eq!(m1["cameras"].as_array().unwrap().len(), 1);
+    assert_eq!(m1["cameras"][0], "cam0");
+}
+
+#[test]
+fn the_ablation_sweep_writes_plots_and_a_summary_row_per_setting() {
+    let out = scratch("ablate");
+    let o = pegs(&[
+        "ablate", "--out", out.to_str().unwrap(), "--scenarios", "pushed_box", "--base", "96x54", "--seconds", "0.4", "--resolutions", "96x54,64x36",
+        "--cameras", "1,3", "--gains", "0,1.5", "--learning-rates", "0.0015", "--iterations", "5",
+    ]);
+    let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert_eq!(String::from_utf8_lossy(&o.stdout).lines().next(), summary.lines().next());
+    // 4 priors + 2 camera counts + 2 resolutions + 2 gains + 1 + 1 settings, after two header lines.
+    assert_eq!(summary.lines().count(), 2 + 12, "{summary}");
+    for group in ["priors", "cameras", "resolution", "gain", "learning_rate", "adam_iterations"] {
+        let png = out.join("pushed_box").join(format!("{group}.png"));
+        assert_eq!(std::fs::read(&png).unwrap()[..4], [0x89, b'P', b'N', b'G'], "{}", png.display());
+    }
+    let rows: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let mean = |variant: &str| rows.as_array().unwrap().iter().find(|r| r["variant"] == variant).unwrap()["mean_mm"].as_f64().unwrap();
+    // Gain 0 leaves only physics, which cannot know the 1 cm start error: the sweep really
+    // changes the tracker's settings.
+    assert!(mean("gain 0") > mean("gain 1.5") + 1.0, "gain 0 {} vs 1.5 {}", mean("gain 0"), mean("gain 1.5"));
+}

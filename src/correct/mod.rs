@@ -241,6 +241,7 @@ impl Corrector {
             stats.displaced += 1;
         }
         spread_over_rigid_bodies(world, &mut forces);
+        spread_along_ropes(world, &mut forces, ROPE_SPREAD);
         for (ext, f) in world.particles.external_force.iter_mut().zip(&forces) {
             *ext += *f;
         }
@@ -280,6 +281,37 @@ pub fn spread_over_rigid_bodies(world: &World, forces: &mut [Vec3]) {
             let m = if p.inv_mass[i] > 0.0 { 1.0 / p.inv_mass[i] } else { 0.0 };
             forces[i] = m * (total / mass + alpha.cross(p.position[i] - centre));
         }
+    }
+}
+
+/// Neighbours on each side of a rope particle that share its visual force.
+const ROPE_SPREAD: usize = 2;
+
+/// Share each rope particle's force with its `reach` neighbours on either side (triangular
+/// weights, the total force kept): one Gaussian's displacement is noisy, and a force on a single
+/// particle of a soft chain bends it into kinks instead of moving the rope.
+pub fn spread_along_ropes(world: &World, forces: &mut [Vec3], reach: usize) {
+    for s in 0..world.shapes.len() {
+        if world.shapes.kind[s] != ShapeKind::Rope {
+            continue;
+        }
+        let range = world.shapes.range(s as u32);
+        let local: Vec<Vec3> = forces[range.clone()].to_vec();
+        let n = local.len() as isize;
+        let weight = |d: isize| (reach as isize + 1 - d.abs()) as f32;
+        let mut spread = vec![Vec3::ZERO; local.len()];
+        for (i, f) in local.iter().enumerate() {
+            if *f == Vec3::ZERO {
+                continue;
+            }
+            let i = i as isize;
+            let (lo, hi) = ((i - reach as isize).max(0), (i + reach as isize).min(n - 1));
+            let total: f32 = (lo..=hi).map(|j| weight(j - i)).sum();
+            for j in lo..=hi {
+                spread[j as usize] += *f * (weight(j - i) / total);
+            }
+        }
+        forces[range].copy_from_slice(&spread);
     }
 }
 

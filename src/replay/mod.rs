@@ -25,11 +25,13 @@ pub struct ReplayOptions {
     /// False: visual forces only (no gravity, ground or collisions), as in the paper's ablation.
     pub physics: bool,
     pub progress: bool,
+    /// Use only the first N cameras (sorted by name); all when None.
+    pub max_cameras: Option<usize>,
 }
 
 impl Default for ReplayOptions {
     fn default() -> Self {
-        Self { visual_forces: true, physics: true, progress: true }
+        Self { visual_forces: true, physics: true, progress: true, max_cameras: None }
     }
 }
 
@@ -56,6 +58,9 @@ pub struct Metrics {
     pub warnings: Vec<String>,
     /// 3-D tracking error per object against `ground_truth.csv` beside the recording, if any.
     pub tracking_error: BTreeMap<String, ErrorStats>,
+    /// Per-tick tracking error per object: `(t, metres)`; also written to `tracking_error.csv`.
+    #[serde(skip)]
+    pub error_series: BTreeMap<String, Vec<(f64, f32)>>,
     /// With `--compare`: the same recording replayed physics-only and visual-forces-only.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub comparison: BTreeMap<String, Comparison>,
@@ -74,8 +79,8 @@ pub struct Comparison {
 /// `out/physics_only` and `out/visual_forces_only`), and record the comparison in `out/metrics.json`.
 pub fn run_compare(recording: &Path, config: &Config, out: &Path, progress: bool) -> Result<Metrics> {
     let mut main = run(recording, config, out, ReplayOptions { progress, ..Default::default() })?;
-    let physics = run(recording, config, &out.join("physics_only"), ReplayOptions { visual_forces: false, physics: true, progress })?;
-    let visual = run(recording, config, &out.join("visual_forces_only"), ReplayOptions { visual_forces: true, physics: false, progress })?;
+    let physics = run(recording, config, &out.join("physics_only"), ReplayOptions { visual_forces: false, physics: true, progress, max_cameras: None })?;
+    let visual = run(recording, config, &out.join("visual_forces_only"), ReplayOptions { visual_forces: true, physics: false, progress, max_cameras: None })?;
     for (object, e) in &main.tracking_error {
         let p = physics.tracking_error.get(object).map_or(f32::NAN, |e| e.mean_mm);
         let v = visual.tracking_error.get(object).map_or(f32::NAN, |e| e.mean_mm);
@@ -201,6 +206,34 @@ fn read_ground_truth(path: &Path) -> Result<BTreeMap<String, Vec<(f64, Pose)>>> 
     Ok(out)
 }
 
+/// Ground-truth particle positions of deformable objects: object -> time-ordered `(t, positions)`.
+type ParticleTruth = BTreeMap<String, Vec<(f64, Vec<Vec3>)>>;
+
+fn read_ground_truth_particles(path: &Path) -> Result<ParticleTruth> {
+    let text = std::fs::read_to_string(path)?;
+    let mut out: ParticleTruth = BTreeMap::new();
+    for (n, line) in text.lines().enumerate().skip(1) {
+        let at = || format!("{}:{}", path.display(), n + 1);
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() != 6 {
+            bail!("{}: expected 6 fields", at());
+        }
+        let t: f64 = f[0].parse().with_context(at)?;
+        let k: usize = f[2].parse().with_context(at)?;
+        let v: Vec<f32> = f[3..].iter().map(|x| x.parse::<f32>()).collect::<std::result::Result<_, _>>().with_context(at)?;
+        let track = out.entry(f[1].to_string()).or_default();
+        if track.last().is_none_or(|(tl, _)| *tl != t) {
+            track.push((t, Vec::new()));
+        }
+        let Some((_, points)) = track.last_mut() else { continue };
+        if k != points.len() {
+            bail!("{}: particle {k} out of order", at());
+        }
+        points.push(Vec3::new(v[0], v[1], v[2]));
+    }
+    Ok(out)
+}
+
 fn stats(errors: &[f32]) -> ErrorStats {
     if errors.is_empty() {
         return ErrorStats::default();
@@ -219,7 +252,11 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         eprintln!("warning: {p}; replaying what was read");
         metrics.warnings.push(p);
     }
-    let streams = parse(messages, &mut metrics.warnings)?;
+    let mut streams = parse(messages, &mut metrics.warnings)?;
+    if let Some(n) = opts.max_cameras {
+        streams.cameras.truncate(n);
+        streams.images.truncate(n);
+    }
     if streams.cameras.is_empty() {
         bail!("{} has no usable camera (needs images, CameraInfo and /tf_static)", recording.display());
     }
@@ -270,9 +307,13 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         let path = recording.with_file_name("ground_truth.csv");
         if path.is_file() { Some(read_ground_truth(&path)?) } else { None }
     };
+    let particle_truth = {
+        let path = recording.with_file_name("ground_truth_particles.csv");
+        if path.is_file() { read_ground_truth_particles(&path)? } else { ParticleTruth::new() }
+    };
     let mut writer = TrajectoryWriter::create(&out.join("objects.csv"))?;
     writer.record(&tracker.scene.world)?;
-    let mut errors: BTreeMap<String, Vec<f32>> = BTreeMap::new();
+    let mut errors: BTreeMap<String, Vec<(f64, f32)>> = BTreeMap::new();
     let mut cursor = vec![0usize; streams.cameras.len()];
     let mut latest: Vec<Option<(f64, Vec<Vec3>)>> = vec![None; streams.cameras.len()];
     let max_age = config.correct.max_image_age as f64;
@@ -319,13 +360,23 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
             let w = &tracker.scene.world;
             for s in w.shapes.dynamic_ids() {
                 let name = &w.shapes.name[s as usize];
+                let range = w.shapes.range(s);
+                if let Some(track) = particle_truth.get(name) {
+                    // Deformable: particle k against the true particle k.
+                    let i = track.partition_point(|(ts, _)| *ts < t - 1e-6).min(track.len() - 1);
+                    let points = &track[i].1;
+                    if points.len() == range.len() {
+                        let e = range.zip(points).map(|(p, q)| w.particles.position[p].distance(*q)).sum::<f32>() / points.len() as f32;
+                        errors.entry(name.clone()).or_default().push((t, e));
+                    }
+                    continue;
+                }
                 let Some(track) = truth.get(name) else { continue };
                 let i = track.partition_point(|(ts, _)| *ts < t - 1e-6).min(track.len() - 1);
                 let pose = track[i].1;
-                let range = w.shapes.range(s);
                 let n = range.len() as f32;
                 let e = range.map(|p| pose.transform_point(w.particles.rest[p]).distance(w.particles.position[p])).sum::<f32>() / n;
-                errors.entry(name.clone()).or_default().push(e);
+                errors.entry(name.clone()).or_default().push((t, e));
             }
         }
         progress.inc(1);
@@ -336,7 +387,17 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     metrics.seconds = ticks as f64 * dt;
     metrics.wall_ms_per_tick = clock.elapsed().as_secs_f64() * 1e3 / ticks.max(1) as f64;
     metrics.mean_loss = loss_sum / ticks.max(1) as f32;
-    metrics.tracking_error = errors.iter().map(|(k, v)| (k.clone(), stats(v))).collect();
+    metrics.tracking_error = errors.iter().map(|(k, v)| (k.clone(), stats(&v.iter().map(|e| e.1).collect::<Vec<_>>()))).collect();
+    if !errors.is_empty() {
+        let mut csv = String::from("t,object,error_mm\n");
+        for (object, series) in &errors {
+            for (t, e) in series {
+                csv += &format!("{t:.6},{object},{:.4}\n", e * 1e3);
+            }
+        }
+        std::fs::write(out.join("tracking_error.csv"), csv)?;
+    }
+    metrics.error_series = errors;
     std::fs::write(out.join("metrics.json"), serde_json::to_string_pretty(&metrics)?)?;
     Ok(metrics)
 }

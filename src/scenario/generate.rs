@@ -2,13 +2,13 @@
 //! with sensor noise and exposure drift, and write a recording (MCAP: images, camera info,
 //! /tf_static, joint states), the ground truth (CSV of object poses) and a replay config.
 
-use super::{build, cameras, observe};
+use super::{build, cameras, observe, truth_config};
 use crate::config::{Config, SceneConfig};
 use crate::math::Pose;
 use crate::msgs::{self, CameraInfo, Header, Image, JointState, Quaternion, TfMessage, Time, Transform, TransformStamped, Vector3};
 use crate::record::{self, RecordingWriter};
 use crate::render::Camera;
-use crate::trajectory::TrajectoryWriter;
+use crate::trajectory::{ParticleWriter, TrajectoryWriter};
 use crate::tracker::Tracker;
 use anyhow::{Context, Result};
 use glam::Vec3;
@@ -62,10 +62,11 @@ fn rgb8(c: &Camera, pixels: &[Vec3], t: f64, frame: &str) -> Image {
 pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let config = Config::default();
-    let mut truth = Tracker::new(build(name, Pose::IDENTITY)?, &config, false)?;
-    let cams = cameras(opts.width, opts.height);
+    let mut truth = Tracker::new(build(name, Pose::IDENTITY)?, &truth_config(name), false)?;
+    let cams = cameras(name, opts.width, opts.height);
     let mut rec = RecordingWriter::create(&out.join("recording.mcap"))?;
     let mut gt = TrajectoryWriter::create(&out.join("ground_truth.csv"))?;
+    let mut gt_particles = ParticleWriter::create(&out.join("ground_truth_particles.csv"))?;
     // Static extrinsics: each optical frame's pose in the world.
     let transforms = cams
         .iter()
@@ -107,11 +108,13 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
         };
         rec.write(record::JOINT_STATES, msgs::schema::joint_state(), Time::from_seconds(t), &js)?;
         gt.record(&truth.scene.world)?;
+        gt_particles.record(&truth.scene.world)?;
         progress.inc(1);
     }
     progress.finish_and_clear();
     rec.finish()?;
     gt.finish()?;
+    gt_particles.finish()?;
     let replay_config = Config { scene: SceneConfig { scenario: Some(name.to_string()), offset_position: opts.offset_position, offset_yaw: opts.offset_yaw }, ..Config::default() };
     std::fs::write(out.join("config.yaml"), replay_config.to_yaml()?)?;
     Ok(())

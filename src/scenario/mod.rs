@@ -10,21 +10,54 @@ use crate::robot::{RobotConfig, RobotInWorld};
 use crate::scene::builtin::{self, Scene, pusher_trajectory};
 use crate::scene::{WorldBuilder, box_lattice};
 use crate::world::World;
+use crate::config::Config;
+use crate::physics::Effect;
+use crate::world::ShapeId;
 use anyhow::{Context, Result, bail};
 
 pub mod generate;
 pub mod table;
 use glam::{DVec3, Quat, Vec3, Vec4};
 
-pub const NAMES: [&str; 4] = ["resting_box", "pushed_box", "pushed_tblock", "two_boxes"];
+pub const NAMES: [&str; 7] = ["resting_box", "pushed_box", "pushed_tblock", "tblock_pushed_over", "two_boxes", "dragged_rope", "hidden_box"];
+
+/// What each scenario shows, for listings and the README table.
+pub fn description(name: &str) -> &'static str {
+    match name {
+        "resting_box" => "a box at rest; the robot stays away",
+        "pushed_box" => "the rod pushes a box 15 cm",
+        "pushed_tblock" => "the rod pushes the T-block 15 cm, turning it",
+        "tblock_pushed_over" => "the T-block stands on its bar; the rod tips it over and it falls flat (gravity prior)",
+        "two_boxes" => "the rod pushes one box into another (collision prior)",
+        "dragged_rope" => "a rope tied to the rod tip is dragged across the table",
+        "hidden_box" => "the hand passes over a box while an unmodelled pull moves it; the box reappears",
+        _ => "",
+    }
+}
 
 /// The tracked objects of scenario `name`.
 pub fn object_names(name: &str) -> &'static [&'static str] {
     match name {
         n if n.contains("tblock") => &["tblock"],
         "two_boxes" => &["box", "box2"],
+        "dragged_rope" => &["rope"],
         _ => &["box"],
     }
+}
+
+/// The configuration of the scenario's true world: pegs' defaults plus the effects the tracker's
+/// model does not have.
+pub fn truth_config(name: &str) -> Config {
+    let mut config = Config::default();
+    if name == "hidden_box" {
+        // A hidden string drags the box along +y at about 1.7 cm/s (a pull above static friction,
+        // balanced by drag), so while the hand hides it the model's prediction goes stale.
+        config.physics.effects = vec![
+            Effect::ConstantForce { object: Some("box".into()), force: Vec3::new(0.0, 2.2, 0.0) },
+            Effect::ViscousDrag { object: Some("box".into()), coefficient: 40.0 },
+        ];
+    }
+    config
 }
 
 /// Particle radius and mass of scenario objects.
@@ -47,62 +80,146 @@ fn add_table(b: &mut WorldBuilder) {
     }
 }
 
-/// The three cameras of a scenario, looking at the workspace around (0.5, 0, 0).
-pub fn cameras(width: u32, height: u32) -> Vec<Camera> {
+/// The three cameras of scenario `name`, looking at the workspace around (0.5, 0, 0). In
+/// `hidden_box` they look over the robot's shoulder, as a head or wall camera behind the arm does.
+pub fn cameras(name: &str, width: u32, height: u32) -> Vec<Camera> {
     let fx = 0.9 * width as f32;
     let target = Vec3::new(0.5, 0.0, 0.02);
-    vec![
-        Camera::look_at(width, height, fx, Vec3::new(1.0, -0.45, 0.55), target),
-        Camera::look_at(width, height, fx, Vec3::new(0.95, 0.5, 0.6), target),
-        Camera::look_at(width, height, fx, Vec3::new(0.25, -0.55, 0.65), target),
-    ]
+    let eyes = if name == "hidden_box" {
+        [Vec3::new(-0.05, -0.12, 0.9), Vec3::new(-0.05, 0.12, 0.9), Vec3::new(0.05, -0.02, 1.0)]
+    } else {
+        [Vec3::new(1.0, -0.45, 0.55), Vec3::new(0.95, 0.5, 0.6), Vec3::new(0.25, -0.55, 0.65)]
+    };
+    eyes.iter().map(|&eye| Camera::look_at(width, height, fx, eye, target)).collect()
 }
+
+/// `offset` applied to a true pose: translated, and turned about the object's own centre.
+fn displaced(rest: Pose, offset: Pose) -> Pose {
+    Pose::new(rest.translation + offset.translation, offset.rotation * rest.rotation)
+}
+
+/// A 12 x 6 x 5 cm box, blue with a yellow end, so no rotation of it looks the same.
+fn add_box(b: &mut WorldBuilder, rest: Pose, offset: Pose) -> ShapeId {
+    let bx = b.add_rigid("box", &box_lattice(Vec3::new(0.06, 0.03, 0.025), 2.0 * R), R, MASS, displaced(rest, offset), Vec3::new(0.15, 0.35, 0.9));
+    b.set_gaussian_look(bx, R, 0.97);
+    b.paint(bx, |p| if p.x > 0.02 { Some(Vec3::new(0.95, 0.8, 0.1)) } else { None });
+    bx
+}
+
+/// The push-T block of the paper's real scenes: 20 x 20 cm, 3 cm thick, orange.
+fn add_tblock(b: &mut WorldBuilder, rest: Pose, offset: Pose) -> ShapeId {
+    let t = b.add_rigid("tblock", &crate::scene::t_block_lattice(0.2, 0.05, 0.03, 2.0 * R), R, MASS, displaced(rest, offset), Vec3::new(1.0, 0.45, 0.1));
+    b.set_gaussian_look(t, R, 0.97);
+    t
+}
+
+/// Height of a box's centre resting on the table (5 cm tall, particle centres R above it).
+const BOX_Z: f32 = R + 2.0 * 2.0 * R;
 
 /// Build scenario `name`'s world with the object placed `offset` away from its true start.
 pub fn build(name: &str, offset: Pose) -> Result<Scene> {
     let mut b = WorldBuilder::new();
     add_table(&mut b);
-    if object_names(name) == ["tblock"] {
-        // The push-T block of the paper's real scenes: 20 x 20 cm, 3 cm thick, orange.
-        let rest = Pose::new(Vec3::new(0.5, 0.0, R + 2.0 * R), Quat::from_rotation_z(0.35));
-        let start = Pose::new(rest.translation + offset.translation, offset.rotation * rest.rotation);
-        let t = b.add_rigid("tblock", &crate::scene::t_block_lattice(0.2, 0.05, 0.03, 2.0 * R), R, MASS, start, Vec3::new(1.0, 0.45, 0.1));
-        b.set_gaussian_look(t, R, 0.97);
-    } else {
-        // A 12 x 6 x 5 cm box, blue with a yellow end, so no rotation of it looks the same.
-        let half = Vec3::new(0.06, 0.03, 0.025);
-        let rest = Pose::new(Vec3::new(0.5, 0.0, R + 2.0 * 2.0 * R), Quat::from_rotation_z(0.2));
-        let start = Pose::new(rest.translation + offset.translation, offset.rotation * rest.rotation);
-        let bx = b.add_rigid("box", &box_lattice(half, 2.0 * R), R, MASS, start, Vec3::new(0.15, 0.35, 0.9));
-        b.set_gaussian_look(bx, R, 0.97);
-        b.paint(bx, |p| if p.x > 0.02 { Some(Vec3::new(0.95, 0.8, 0.1)) } else { None });
-        if name == "two_boxes" {
-            // A second, 8 x 8 x 5 cm red box with a white end, in the first one's path.
-            let rest = Pose::new(Vec3::new(0.51, 0.13, R + 2.0 * 2.0 * R), Quat::from_rotation_z(-0.3));
-            let start = Pose::new(rest.translation + offset.translation, offset.rotation * rest.rotation);
-            let b2 = b.add_rigid("box2", &box_lattice(Vec3::new(0.04, 0.04, 0.025), 2.0 * R), R, MASS, start, Vec3::new(0.85, 0.15, 0.15));
-            b.set_gaussian_look(b2, R, 0.97);
-            b.paint(b2, |p| if p.y > 0.02 { Some(Vec3::splat(0.9)) } else { None });
-        }
-    }
     let model = builtin::panda_pusher()?;
+    let tip = |x: f64, y: f64, z: f64| DVec3::new(x, y, z);
+    // Pusher-tip waypoints (time, point); the rod points down.
     let waypoints: Vec<(f64, DVec3)> = match name {
-        // The robot parks away from the box.
-        "resting_box" => vec![(0.0, DVec3::new(0.3, -0.3, 0.2))],
-        // The rod comes down behind the box and pushes it 15 cm along +y.
-        "pushed_box" | "two_boxes" => vec![(0.0, DVec3::new(0.5, -0.16, 0.12)), (0.5, DVec3::new(0.5, -0.16, 0.02)), (3.5, DVec3::new(0.5, 0.1, 0.02)), (4.0, DVec3::new(0.5, 0.1, 0.12))],
-        // The rod comes down behind the stem and pushes the T 15 cm along +y, turning it.
-        "pushed_tblock" => vec![(0.0, DVec3::new(0.5, -0.22, 0.12)), (0.5, DVec3::new(0.5, -0.22, 0.015)), (3.5, DVec3::new(0.5, 0.04, 0.015)), (4.0, DVec3::new(0.5, 0.04, 0.12))],
+        "resting_box" => {
+            add_box(&mut b, Pose::new(Vec3::new(0.5, 0.0, BOX_Z), Quat::from_rotation_z(0.2)), offset);
+            // The robot parks away from the box.
+            vec![(0.0, tip(0.3, -0.3, 0.2)), (10.0, tip(0.3, -0.3, 0.2))]
+        }
+        "pushed_box" | "two_boxes" => {
+            add_box(&mut b, Pose::new(Vec3::new(0.5, 0.0, BOX_Z), Quat::from_rotation_z(0.2)), offset);
+            if name == "two_boxes" {
+                // A second, 8 x 8 x 5 cm red box with a white end, in the first one's path.
+                let rest = Pose::new(Vec3::new(0.51, 0.13, BOX_Z), Quat::from_rotation_z(-0.3));
+                let b2 = b.add_rigid("box2", &box_lattice(Vec3::new(0.04, 0.04, 0.025), 2.0 * R), R, MASS, displaced(rest, offset), Vec3::new(0.85, 0.15, 0.15));
+                b.set_gaussian_look(b2, R, 0.97);
+                b.paint(b2, |p| if p.y > 0.02 { Some(Vec3::splat(0.9)) } else { None });
+            }
+            // The rod comes down behind the box and pushes it 15 cm along +y.
+            vec![(0.0, tip(0.5, -0.16, 0.12)), (0.5, tip(0.5, -0.16, 0.02)), (3.5, tip(0.5, 0.1, 0.02)), (4.0, tip(0.5, 0.1, 0.12))]
+        }
+        "pushed_tblock" => {
+            add_tblock(&mut b, Pose::new(Vec3::new(0.5, 0.0, R + 2.0 * R), Quat::from_rotation_z(0.35)), offset);
+            // The rod comes down behind the stem and pushes the T 15 cm along +y, turning it.
+            vec![(0.0, tip(0.5, -0.22, 0.12)), (0.5, tip(0.5, -0.22, 0.015)), (3.5, tip(0.5, 0.04, 0.015)), (4.0, tip(0.5, 0.04, 0.12))]
+        }
+        "tblock_pushed_over" => {
+            // Standing on its bar (body +y down), stem up, its thickness along world y.
+            let standing = Quat::from_rotation_z(0.15) * Quat::from_rotation_x(-std::f32::consts::FRAC_PI_2);
+            add_tblock(&mut b, Pose::new(Vec3::new(0.5, 0.0, R + 0.095), standing), offset);
+            // The rod touches the top of the stem from -y and tips the T over; it falls flat.
+            vec![(0.0, tip(0.5, -0.1, 0.25)), (0.5, tip(0.5, -0.06, 0.17)), (1.5, tip(0.5, 0.04, 0.17)), (2.0, tip(0.5, 0.04, 0.3))]
+        }
+        "dragged_rope" => vec![(0.0, tip(0.35, 0.1, 0.012)), (0.5, tip(0.35, 0.1, 0.012)), (4.0, tip(0.6, 0.15, 0.012))],
+        "hidden_box" => {
+            add_box(&mut b, Pose::new(Vec3::new(0.5, -0.1, BOX_Z), Quat::from_rotation_z(0.2)), offset);
+            // The hand comes in between the cameras and the box, follows it, and leaves.
+            vec![(0.0, tip(0.2, 0.4, 0.3)), (1.0, tip(0.36, -0.11, 0.12)), (2.4, tip(0.36, -0.08, 0.12)), (3.0, tip(0.2, 0.4, 0.3))]
+        }
         other => bail!("unknown scenario '{other}' (known: {})", NAMES.join(", ")),
     };
-    let mut waypoints = waypoints;
-    if waypoints.len() == 1 {
-        waypoints.push((10.0, waypoints[0].1));
-    }
     let trajectory = pusher_trajectory(&model, &waypoints, 30.0)?;
     let q0 = trajectory.at(0.0).context("empty trajectory")?;
     let robot = RobotInWorld::add(&mut b, model, &q0, &RobotConfig::default())?;
+    if name == "dragged_rope" {
+        add_rope_tied_to_tip(&mut b, &robot, &q0, offset)?;
+    }
     Ok(Scene { world: b.build(), scripts: Vec::new(), robot: Some((robot, trajectory)) })
+}
+
+/// A 30 cm green rope lying along -y on the table, its first particle tied to the rod tip.
+fn add_rope_tied_to_tip(b: &mut WorldBuilder, robot: &RobotInWorld, q0: &[f64], offset: Pose) -> Result<()> {
+    let link = robot.model.link_index("panda_pusher").context("no pusher link")?;
+    let tip_world = (robot.base * robot.model.forward_kinematics(q0)[link]).transform_point3(builtin::PUSHER_TIP).as_vec3();
+    let spacing = 2.0 * R;
+    let start = Vec3::new(tip_world.x, tip_world.y - spacing, R);
+    let rest: Vec<Vec3> = (0..30).map(|k| start - Vec3::new(0.0, k as f32 * spacing, 0.0)).collect();
+    let centre = rest.iter().copied().sum::<Vec3>() / rest.len() as f32;
+    let points: Vec<Vec3> = rest.iter().map(|&p| offset.rotation * (p - centre) + centre + offset.translation).collect();
+    let rope = b.add_rope("rope", &points, R, MASS, 0.3, Vec3::new(0.2, 0.8, 0.3));
+    b.set_gaussian_look(rope, R, 0.97);
+    // The rod particle nearest the tip holds the rope's first particle where it lies (a model
+    // started off the true pose gets a slightly different tie: no constraint starts violated).
+    let world = b.world();
+    let pusher = world.shape_id("robot/panda_pusher").context("no pusher shape")?;
+    let holder = world.shapes.range(pusher).min_by(|&i, &j| world.particles.position[i].distance(tip_world).total_cmp(&world.particles.position[j].distance(tip_world))).context("empty pusher")?;
+    let first = world.shapes.range(rope).start;
+    b.attach(holder, first);
+    Ok(())
+}
+
+/// Per camera, the fraction of `object`'s silhouette that is visible (not hidden by anything in
+/// front of it): pixels the object covers when rendered alone, against pixels whose colour
+/// changes when it is removed from the full scene.
+pub fn visible_fraction(world: &World, cameras: &[Camera], object: &str) -> Vec<f32> {
+    let Some(s) = world.shape_id(object) else { return vec![0.0; cameras.len()] };
+    let range = world.shapes.range(s);
+    let full = GaussianCloud::from_world(world);
+    let mine: Vec<bool> = world.gaussians.parent.iter().map(|&p| range.contains(&(p as usize))).collect();
+    let mut without = full.clone();
+    let mut alone = full.clone();
+    for (i, &m) in mine.iter().enumerate() {
+        if m {
+            without.opacity_logit[i] = -30.0;
+        } else {
+            alone.opacity_logit[i] = -30.0;
+        }
+    }
+    let mut renderer = CpuRenderer::new(RenderSettings::default());
+    cameras
+        .iter()
+        .map(|c| {
+            let a = renderer.forward(&full, c, Roi::full(c));
+            let b = renderer.forward(&without, c, Roi::full(c));
+            let o = renderer.forward(&alone, c, Roi::full(c));
+            let silhouette = o.alpha.iter().filter(|&&x| x > 0.5).count();
+            let seen = o.alpha.iter().zip(a.colour.iter().zip(&b.colour)).filter(|(x, (p, q))| **x > 0.5 && (**p - **q).abs().max_element() > 0.05).count();
+            if silhouette == 0 { 0.0 } else { seen as f32 / silhouette as f32 }
+        })
+        .collect()
 }
 
 /// Render what the cameras see of `world`, with sensor noise (std-dev `noise`) and an exposure
