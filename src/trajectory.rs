@@ -8,16 +8,21 @@ use std::path::Path;
 
 pub const HEADER: &str = "t,object,x,y,z,qx,qy,qz,qw";
 
+/// A buffered CSV file that starts with `header`.
+fn create_csv(path: &Path, header: &str) -> Result<std::io::BufWriter<std::fs::File>> {
+    let file = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+    let mut out = std::io::BufWriter::new(file);
+    writeln!(out, "{header}")?;
+    Ok(out)
+}
+
 pub struct TrajectoryWriter {
     out: std::io::BufWriter<std::fs::File>,
 }
 
 impl TrajectoryWriter {
     pub fn create(path: &Path) -> Result<Self> {
-        let file = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
-        let mut out = std::io::BufWriter::new(file);
-        writeln!(out, "{HEADER}")?;
-        Ok(Self { out })
+        Ok(Self { out: create_csv(path, HEADER)? })
     }
 
     /// Append the pose of every dynamic object at the world's current time.
@@ -49,10 +54,7 @@ pub struct ParticleWriter {
 
 impl ParticleWriter {
     pub fn create(path: &Path) -> Result<Self> {
-        let file = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
-        let mut out = std::io::BufWriter::new(file);
-        writeln!(out, "{PARTICLE_HEADER}")?;
-        Ok(Self { out })
+        Ok(Self { out: create_csv(path, PARTICLE_HEADER)? })
     }
 
     /// Append every rope particle at the world's current time.
