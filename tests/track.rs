@@ -42,6 +42,11 @@ fn track_with(name: &str, offset: Pose, ticks: u64, visual_forces: bool, config:
     errors
 }
 
+/// The start error of the scenario tests: 1 cm and 5 degrees.
+fn small_offset() -> Pose {
+    Pose::new(Vec3::new(0.01, 0.0, 0.0), Quat::from_rotation_z(5f32.to_radians()))
+}
+
 fn mean(v: &[f32]) -> f32 {
     v.iter().sum::<f32>() / v.len() as f32
 }
@@ -49,7 +54,7 @@ fn mean(v: &[f32]) -> f32 {
 /// Track `name` from a 1 cm / 5 deg start error with and without visual forces for 4.5 s;
 /// returns the mean error with, the mean error without, and the final error with (m).
 fn with_and_without(name: &str) -> (f32, f32, f32) {
-    let offset = Pose::new(Vec3::new(0.01, 0.0, 0.0), Quat::from_rotation_z(5f32.to_radians()));
+    let offset = small_offset();
     let with = track(name, offset, 135, true);
     let without = track(name, offset, 135, false);
     let (m_with, m_without) = (mean(&with), mean(&without));
@@ -97,7 +102,7 @@ fn two_colliding_boxes_are_both_tracked_within_5mm_mean() {
 
 #[test]
 fn a_t_block_pushed_over_is_tracked_through_its_fall_and_gravity_helps() {
-    let offset = Pose::new(Vec3::new(0.01, 0.0, 0.0), Quat::from_rotation_z(5f32.to_radians()));
+    let offset = small_offset();
     let with = track("tblock_pushed_over", offset, 135, true);
     let visual_only = track_with("tblock_pushed_over", offset, 135, true, without_physics());
     // The fall: the rod tips the T from about 1.0 s; it lies flat by about 2.1 s.
@@ -112,7 +117,7 @@ fn a_t_block_pushed_over_is_tracked_through_its_fall_and_gravity_helps() {
 
 #[test]
 fn a_rope_dragged_by_the_robot_stays_tracked() {
-    let offset = Pose::new(Vec3::new(0.01, 0.0, 0.0), Quat::from_rotation_z(5f32.to_radians()));
+    let offset = small_offset();
     let with = track("dragged_rope", offset, 135, true);
     let without = track("dragged_rope", offset, 135, false);
     eprintln!(
@@ -145,7 +150,7 @@ fn a_box_hidden_behind_the_arm_is_recovered_after_it_reappears() {
             }
         }
     }
-    let offset = Pose::new(Vec3::new(0.01, 0.0, 0.0), Quat::from_rotation_z(5f32.to_radians()));
+    let offset = small_offset();
     let with = track(name, offset, 135, true);
     let without = track(name, offset, 135, false);
     let (before, hidden_end, after) = (with[29], with[71], mean(&with[105..]));
