@@ -123,12 +123,6 @@ fn mean_series(m: &replay::Metrics) -> Vec<(f64, f32)> {
     (0..first.len()).map(|k| (first[k].0, m.error_series.values().map(|s| s.get(k).map_or(0.0, |e| e.1)).sum::<f32>() / n * 1e3)).collect()
 }
 
-fn percentile(values: &[f32], q: f32) -> f32 {
-    let mut v = values.to_vec();
-    v.sort_by(f32::total_cmp);
-    v.get(((v.len() as f32 * q).ceil() as usize).clamp(1, v.len().max(1)) - 1).copied().unwrap_or(f32::NAN)
-}
-
 /// Run the sweep into `out`; returns the summary rows (also in `out/summary.md` and `.json`).
 pub fn run(opts: &SweepOptions, out: &Path) -> Result<Vec<Row>> {
     if opts.scenarios.is_empty() {
@@ -173,17 +167,19 @@ pub fn run(opts: &SweepOptions, out: &Path) -> Result<Vec<Row>> {
                     r
                 }
             };
-            let errors: Vec<f32> = series.iter().map(|e| e.1).collect();
+            // Back to metres for the same statistics as replay's metrics.
+            let errors: Vec<f32> = series.iter().map(|e| e.1 * 1e-3).collect();
             if errors.is_empty() {
                 bail!("{}: no ground truth to measure against", recording.display());
             }
+            let stats = replay::stats(&errors);
             rows.push(Row {
                 scenario: name.clone(),
                 group: v.group.into(),
                 variant: v.label.clone(),
-                mean_mm: errors.iter().sum::<f32>() / errors.len() as f32,
-                p95_mm: percentile(&errors, 0.95),
-                final_mm: errors[errors.len() - 1],
+                mean_mm: stats.mean_mm,
+                p95_mm: stats.p95_mm,
+                final_mm: stats.final_mm,
                 wall_ms_per_tick,
             });
             groups.entry(v.group).or_default().push((v.label.clone(), series));

@@ -79,8 +79,8 @@ pub struct Comparison {
 /// `out/physics_only` and `out/visual_forces_only`), and record the comparison in `out/metrics.json`.
 pub fn run_compare(recording: &Path, config: &Config, out: &Path, progress: bool) -> Result<Metrics> {
     let mut main = run(recording, config, out, ReplayOptions { progress, ..Default::default() })?;
-    let physics = run(recording, config, &out.join("physics_only"), ReplayOptions { visual_forces: false, physics: true, progress, max_cameras: None })?;
-    let visual = run(recording, config, &out.join("visual_forces_only"), ReplayOptions { visual_forces: true, physics: false, progress, max_cameras: None })?;
+    let physics = run(recording, config, &out.join("physics_only"), ReplayOptions { visual_forces: false, progress, ..Default::default() })?;
+    let visual = run(recording, config, &out.join("visual_forces_only"), ReplayOptions { physics: false, progress, ..Default::default() })?;
     for (object, e) in &main.tracking_error {
         let p = physics.tracking_error.get(object).map_or(f32::NAN, |e| e.mean_mm);
         let v = visual.tracking_error.get(object).map_or(f32::NAN, |e| e.mean_mm);
@@ -234,7 +234,8 @@ fn read_ground_truth_particles(path: &Path) -> Result<ParticleTruth> {
     Ok(out)
 }
 
-fn stats(errors: &[f32]) -> ErrorStats {
+/// Mean, 95th percentile and last of per-tick errors in metres, reported in mm.
+pub fn stats(errors: &[f32]) -> ErrorStats {
     if errors.is_empty() {
         return ErrorStats::default();
     }
