@@ -4,9 +4,9 @@
 
 use crate::physics::Effect;
 use anyhow::{Context, Result, bail};
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The whole configuration file. Sections grow with the system (render, correct, ros, ...).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -19,17 +19,68 @@ pub struct Config {
     pub scene: SceneConfig,
 }
 
-/// Where the tracker's world comes from. Until initialisation from cameras exists, a built-in
-/// scenario's world, with its tracked object moved by an initial pose error.
+/// Where the tracker's world comes from: a built-in scenario's world (with its tracked object
+/// moved by an initial pose error), or objects loaded from files plus a table fitted to the first
+/// frames (`init`).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SceneConfig {
-    /// A name from `pegs scenario list`.
+    /// A name from `pegs scenario list`; when set, `objects` and `table` are not used.
     pub scenario: Option<String>,
-    /// Initial pose error of the tracked object: translation (m) and rotation about z (rad).
+    /// Initial pose error of the scenario's tracked object: translation (m) and rotation about z (rad).
     pub offset_position: Vec3,
     pub offset_yaw: f32,
+    /// Objects loaded from files.
+    pub objects: Vec<ObjectConfig>,
+    /// The table as thin-disk Gaussians on the ground plane, fitted to the first frames.
+    pub table: Option<TableConfig>,
 }
+
+/// One tracked object loaded from a file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ObjectConfig {
+    pub name: String,
+    /// Object file in the embodied-gaussians JSON format (pose, Gaussians, particles).
+    pub embodied_gaussians: PathBuf,
+    /// Total mass, kg, shared equally by the particles.
+    pub mass: f32,
+    /// Colour band that picks this object out of the images: aligns it at the start and measures
+    /// the silhouette overlap of the tracking in `pegs replay`.
+    pub mask: Option<ColourMask>,
+    /// Before tracking, move the object on the table to best match `mask` in the first frames.
+    pub align_at_start: bool,
+}
+
+impl Default for ObjectConfig {
+    fn default() -> Self {
+        Self { name: String::new(), embodied_gaussians: PathBuf::new(), mass: 0.2, mask: None, align_at_start: true }
+    }
+}
+
+/// The table: a grid of flat Gaussians on the ground plane over a rectangle of world x, y.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TableConfig {
+    pub min: Vec2,
+    pub max: Vec2,
+    /// Grid spacing, m.
+    pub spacing: f32,
+    /// Adam steps on the disks' colours, first frames used per camera, and the learning rate.
+    pub fit_steps: u32,
+    pub fit_frames: u32,
+    pub lr: f32,
+    /// The fit renders at this fraction of the camera resolution (the disks are coarser than pixels).
+    pub fit_resolution: f32,
+}
+
+impl Default for TableConfig {
+    fn default() -> Self {
+        Self { min: Vec2::splat(-0.5), max: Vec2::splat(0.5), spacing: 0.01, fit_steps: 500, fit_frames: 3, lr: 0.02, fit_resolution: 0.5 }
+    }
+}
+
+pub use crate::init::ColourMask;
 
 /// Position-based dynamics (spec section 2, "Predict").
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

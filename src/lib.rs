@@ -10,6 +10,8 @@ pub mod bench;
 pub mod config;
 pub mod correct;
 pub mod demo;
+pub mod import;
+pub mod init;
 pub mod math;
 pub mod msgs;
 pub mod physics;

@@ -56,6 +56,11 @@ enum Command {
         #[arg(long)]
         cameras: Option<usize>,
     },
+    /// Convert another project's recording layout into a pegs recording and replay configuration.
+    Import {
+        #[command(subcommand)]
+        what: ImportFormat,
+    },
     /// Reproduce the supplementary's ablations on synthetic scenarios: PNG plots of tracking
     /// error over time per ablation and OUT/summary.md. Lists are comma-separated.
     Ablate {
@@ -81,6 +86,28 @@ enum Command {
         /// Also write the summary table into this Markdown file between its ablation markers.
         #[arg(long)]
         readme: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand)]
+enum ImportFormat {
+    /// The PEGS authors' sample layout (videos/*.mp4 + *.json, cameras.json, object JSON files,
+    /// ground_plane.json, ground.npy); videos are decoded with the ffmpeg tool.
+    EmbodiedGaussians {
+        dir: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        config_out: PathBuf,
+        /// Seconds after the first frame to start at.
+        #[arg(long, default_value_t = 0.0)]
+        start: f64,
+        /// Seconds to import (all by default).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Keep at most this many frames per second per camera (0 keeps all).
+        #[arg(long, default_value_t = 30.0)]
+        max_rate: f64,
     },
 }
 
@@ -274,6 +301,11 @@ fn main() -> Result<()> {
             for (object, e) in &m.tracking_error {
                 println!("  {object}: tracking error mean {:.2} mm, p95 {:.2} mm, final {:.2} mm", e.mean_mm, e.p95_mm, e.final_mm);
             }
+            for (object, cams) in &m.silhouette_iou {
+                for (camera, s) in cams {
+                    println!("  {object} in {camera}: silhouette IoU mean {:.3}, p5 {:.3} over {} frames", s.mean, s.p5, s.frames);
+                }
+            }
             for (object, c) in &m.comparison {
                 println!(
                     "  {object}: physics only {:.2} mm, visual forces only {:.2} mm (ratios {:.2} / {:.2})",
@@ -284,6 +316,14 @@ fn main() -> Result<()> {
                 println!("  rejected {} images and {} joint states (see metrics.json warnings)", m.rejected_images, m.rejected_joint_states);
             }
             println!("wrote {0}/objects.csv and {0}/metrics.json", out.display());
+        }
+        Command::Import { what: ImportFormat::EmbodiedGaussians { dir, out, config_out, start, duration, max_rate } } => {
+            let opts = pegs::import::embodied_gaussians::ImportOptions { start, duration, max_rate, progress: true };
+            let report = pegs::import::embodied_gaussians::import(&dir, &out, &config_out, &opts)?;
+            for w in &report.warnings {
+                eprintln!("warning: {w}");
+            }
+            println!("imported {:.2} s to {:.2} s: {:?} frames; wrote {} and {}", report.first_stamp, report.last_stamp, report.frames_per_camera, out.display(), config_out.display());
         }
         Command::Bench { what: BenchTarget::Tick { json, ticks, backend } } => {
             use pegs::render::Backend;

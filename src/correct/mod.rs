@@ -45,6 +45,10 @@ pub struct CorrectConfig {
     /// Render only the window around the tracked objects' footprint (plus this margin, px).
     pub use_roi: bool,
     pub roi_margin_px: f32,
+    /// Unmodelled occluders (an arm without joint states, a hand): a pixel whose colour is further
+    /// than this (RGB distance, colours in [0, 1]) from both the static scene rendered there and
+    /// every colour of the tracked objects is left out of the loss. 0 uses every pixel.
+    pub occluder_threshold: f32,
 }
 
 impl Default for CorrectConfig {
@@ -79,13 +83,14 @@ impl Default for CorrectConfig {
             max_image_age: 0.5,
             use_roi: true,
             roi_margin_px: 12.0,
+            occluder_threshold: 0.0,
         }
     }
 }
 
 impl CorrectConfig {
     pub fn validate(&self) -> Result<()> {
-        for (name, v) in [("lr_mean", self.lr_mean), ("lr_rotation", self.lr_rotation), ("lr_colour", self.lr_colour), ("lr_opacity", self.lr_opacity), ("gain", self.gain), ("damping", self.damping), ("min_displacement", self.min_displacement), ("max_image_age", self.max_image_age), ("roi_margin_px", self.roi_margin_px)] {
+        for (name, v) in [("lr_mean", self.lr_mean), ("lr_rotation", self.lr_rotation), ("lr_colour", self.lr_colour), ("lr_opacity", self.lr_opacity), ("gain", self.gain), ("damping", self.damping), ("min_displacement", self.min_displacement), ("max_image_age", self.max_image_age), ("roi_margin_px", self.roi_margin_px), ("occluder_threshold", self.occluder_threshold)] {
             if !(v.is_finite() && v >= 0.0) {
                 bail!("correct.{name} must be finite and >= 0, got {v}");
             }
@@ -111,6 +116,8 @@ pub struct CorrectStats {
     /// after the Adam iterations.
     pub loss_before: f32,
     pub loss_after: f32,
+    /// Pixels left out as unexplained occluders (summed over the windows).
+    pub occluded_pixels: usize,
     /// Gaussians whose displacement exceeded the threshold and produced a force.
     pub displaced: usize,
     /// Total visual force per shape (N), indexed by shape id.
@@ -123,6 +130,8 @@ pub struct Corrector {
     adam: [Adam; 4],
     /// Each Gaussian's displacement at the previous tick (for the derivative term).
     previous: Vec<Vec3>,
+    /// The static scene rendered into each camera seen so far (for the occluder test).
+    backgrounds: Vec<(Camera, Vec<Vec3>)>,
 }
 
 impl Corrector {
@@ -130,7 +139,7 @@ impl Corrector {
         config.validate()?;
         let renderer = render::open(config.backend, render)?;
         let a = Adam::new(config.beta1, config.beta2, config.epsilon);
-        Ok(Self { config, renderer, adam: [a.clone(), a.clone(), a.clone(), a], previous: Vec::new() })
+        Ok(Self { config, renderer, adam: [a.clone(), a.clone(), a.clone(), a], previous: Vec::new(), backgrounds: Vec::new() })
     }
 
     /// Optimise the tracked objects' Gaussians against `views` and add the resulting visual
@@ -158,6 +167,21 @@ impl Corrector {
             .map(|v| if self.config.use_roi { render::footprint_roi(&cloud, &free, &v.camera, self.config.roi_margin_px) } else { Roi::full(&v.camera) })
             .collect();
         let targets: Vec<Vec<Vec3>> = views.iter().zip(&windows).map(|(v, w)| crop(v.image, v.camera.width, *w)).collect();
+        let weights: Vec<Vec<f32>> = if self.config.occluder_threshold > 0.0 {
+            let palette = palette(free.iter().map(|&i| cloud.colour[i]));
+            let mut weights = Vec::with_capacity(views.len());
+            for ((v, w), target) in views.iter().zip(&windows).zip(&targets) {
+                let background = crop(self.background(world, &v.camera)?, v.camera.width, *w);
+                let t2 = self.config.occluder_threshold * self.config.occluder_threshold;
+                let explained = |o: Vec3, b: Vec3| o.distance_squared(b) <= t2 || palette.iter().any(|c| o.distance_squared(*c) <= t2);
+                let wv: Vec<f32> = target.iter().zip(&background).map(|(o, b)| if explained(*o, *b) { 1.0 } else { 0.0 }).collect();
+                stats.occluded_pixels += wv.iter().filter(|x| **x == 0.0).count();
+                weights.push(wv);
+            }
+            weights
+        } else {
+            targets.iter().map(|t| vec![1.0; t.len()]).collect()
+        };
 
         let n = free.len();
         let start: Vec<Vec3> = free.iter().map(|&i| cloud.mean[i]).collect();
@@ -178,17 +202,17 @@ impl Corrector {
             }
             let (mut gm, mut gr, mut gc, mut go) = (vec![0.0f32; 3 * n], vec![0.0f32; 4 * n], vec![0.0f32; 3 * n], vec![0.0f32; n]);
             let mut loss = 0.0f32;
-            for ((view, window), target) in views.iter().zip(&windows).zip(&targets) {
+            for (((view, window), target), weight) in views.iter().zip(&windows).zip(&targets).zip(&weights) {
                 if window.pixels() == 0 {
                     continue;
                 }
                 let out = self.renderer.forward(&cloud, &view.camera, *window)?;
                 let scale = 1.0 / (3.0 * window.pixels() as f32);
-                loss += out.colour.iter().zip(target).map(|(a, b)| (*a - *b).length_squared()).sum::<f32>() * scale;
+                loss += out.colour.iter().zip(target).zip(weight).map(|((a, b), w)| w * (*a - *b).length_squared()).sum::<f32>() * scale;
                 if it == c.iterations {
                     continue; // last pass only measures the loss after the updates
                 }
-                let d = PixelGrads { colour: out.colour.iter().zip(target).map(|(a, b)| 2.0 * scale * (*a - *b)).collect(), ..Default::default() };
+                let d = PixelGrads { colour: out.colour.iter().zip(target).zip(weight).map(|((a, b), w)| 2.0 * scale * w * (*a - *b)).collect(), ..Default::default() };
                 let g = self.renderer.backward(&cloud, &d)?;
                 for (k, &i) in free.iter().enumerate() {
                     for j in 0..3 {
@@ -247,6 +271,39 @@ impl Corrector {
         }
         Ok(stats)
     }
+}
+
+impl Corrector {
+    /// The static scene (Gaussians without a parent) rendered into `camera`, cached per camera.
+    fn background(&mut self, world: &World, camera: &Camera) -> Result<&[Vec3]> {
+        let k = match self.backgrounds.iter().position(|(c, _)| c == camera) {
+            Some(k) => k,
+            None => {
+                let full = GaussianCloud::from_world(world);
+                let mut scene = GaussianCloud::default();
+                for i in (0..full.len()).filter(|&i| world.gaussians.parent[i] == NO_PARENT) {
+                    scene.push(full.get(i));
+                }
+                let out = self.renderer.forward(&scene, camera, Roi::full(camera))?;
+                self.backgrounds.push((*camera, out.colour));
+                self.backgrounds.len() - 1
+            }
+        };
+        Ok(&self.backgrounds[k].1)
+    }
+}
+
+/// The distinct colours of a set (quantised to 1/20), which the occluder test compares against.
+fn palette(colours: impl Iterator<Item = Vec3>) -> Vec<Vec3> {
+    let mut seen = std::collections::BTreeSet::new();
+    let mut out = Vec::new();
+    for c in colours {
+        let key = (c.clamp(Vec3::ZERO, Vec3::ONE) * 20.0).round().as_ivec3().to_array();
+        if seen.insert(key) {
+            out.push(c);
+        }
+    }
+    out
 }
 
 /// Replace the forces on each rigid shape's particles by the distribution that gives the same
@@ -328,6 +385,7 @@ fn crop(image: &[Vec3], width: u32, w: Roi) -> Vec<Vec3> {
 mod tests {
     use super::*;
     use crate::math::Pose;
+    use crate::render::cpu::CpuRenderer;
     use crate::scene::{WorldBuilder, box_lattice};
 
     #[test]
@@ -351,4 +409,33 @@ mod tests {
         assert!((torque1 - torque0).length() < 1e-3 * torque0.length().max(1e-6) + 1e-7, "{torque1} vs {torque0}");
         assert!(range.clone().all(|i| f[i] != Vec3::ZERO), "every particle carries its share");
     }
+
+    #[test]
+    fn an_unmodelled_occluder_pushes_the_object_unless_its_pixels_are_left_out() {
+        let mut b = WorldBuilder::new();
+        b.add_rigid("box", &box_lattice(Vec3::new(0.04, 0.03, 0.02), 0.01), 0.005, 0.002, Pose::from_translation(Vec3::new(0.0, 0.0, 0.02)), Vec3::new(1.0, 0.4, 0.1));
+        let world = b.build();
+        let camera = Camera::look_at(80, 60, 80.0, Vec3::new(0.3, 0.0, 0.35), Vec3::ZERO);
+        let mut image = CpuRenderer::new(RenderSettings::default()).forward(&GaussianCloud::from_world(&world), &camera, Roi::full(&camera)).colour;
+        // A white arm covers the left part of the box in the image; the model knows nothing of it.
+        let columns: Vec<u32> = (0..80).filter(|&x| (0..60).any(|y| image[(y * 80 + x) as usize].x > 0.5)).collect();
+        let split = columns[columns.len() / 2];
+        for y in 0..60 {
+            for x in 0..split {
+                image[(y * 80 + x) as usize] = Vec3::splat(0.9);
+            }
+        }
+        let force = |threshold: f32| {
+            let mut w = world.clone();
+            let config = CorrectConfig { occluder_threshold: threshold, ..Default::default() };
+            let mut c = Corrector::new(config, RenderSettings::default()).unwrap();
+            let stats = c.correct(&mut w, &[View { camera, image: &image }], 1.0 / 30.0).unwrap();
+            (stats.force[0].length(), stats.occluded_pixels)
+        };
+        let (pushed, _) = force(0.0);
+        let (kept, occluded) = force(0.35);
+        assert!(occluded > 100, "the arm's pixels are found: {occluded}");
+        assert!(pushed > 1e-3 && kept < 0.2 * pushed, "force with the arm in the loss {pushed} N, without {kept} N");
+    }
 }
+

@@ -2,7 +2,8 @@
 //! by the scenario generator; reading streams messages in file order for replay and tolerates a
 //! truncated file (it yields what is intact and says where it stopped).
 
-use crate::msgs::{self, Time};
+use crate::msgs::{self, CameraInfo, Header, Image, Quaternion, TfMessage, Time, Transform, TransformStamped, Vector3};
+use crate::render::Camera;
 use anyhow::{Context, Result};
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
@@ -22,6 +23,49 @@ pub fn optical_frame(camera: &str) -> String {
 pub const JOINT_STATES: &str = "/joint_states";
 pub const TF_STATIC: &str = "/tf_static";
 pub const WORLD_FRAME: &str = "world";
+
+pub fn header(t: f64, frame: &str) -> Header {
+    Header { stamp: Time::from_seconds(t), frame_id: frame.to_string() }
+}
+
+/// CameraInfo of a pinhole camera without distortion (back to the OpenCV convention: pixel
+/// centres at integers).
+pub fn camera_info(c: &Camera, t: f64, frame: &str) -> CameraInfo {
+    let (fx, fy, cx, cy) = (c.fx as f64, c.fy as f64, c.cx as f64 - 0.5, c.cy as f64 - 0.5);
+    CameraInfo {
+        header: header(t, frame),
+        height: c.height,
+        width: c.width,
+        distortion_model: "plumb_bob".into(),
+        d: vec![0.0; 5],
+        k: [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+        r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p: [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+        ..Default::default()
+    }
+}
+
+/// An rgb8 image message from packed RGB bytes.
+pub fn rgb8(width: u32, height: u32, data: Vec<u8>, t: f64, frame: &str) -> Image {
+    Image { header: header(t, frame), height, width, encoding: "rgb8".into(), is_bigendian: 0, step: 3 * width, data }
+}
+
+/// `/tf_static` content: every named camera's optical frame in the world frame.
+pub fn optical_frames_tf(cameras: &[(String, Camera)]) -> TfMessage {
+    let transforms = cameras
+        .iter()
+        .map(|(name, c)| {
+            let cam_to_world = c.world_to_camera.inverse();
+            let (t, q) = (cam_to_world.translation, cam_to_world.rotation);
+            TransformStamped {
+                header: header(0.0, WORLD_FRAME),
+                child_frame_id: optical_frame(name),
+                transform: Transform { translation: Vector3 { x: t.x as f64, y: t.y as f64, z: t.z as f64 }, rotation: Quaternion { x: q.x as f64, y: q.y as f64, z: q.z as f64, w: q.w as f64 } },
+            }
+        })
+        .collect();
+    TfMessage { transforms }
+}
 
 pub struct RecordingWriter {
     writer: mcap::Writer<BufWriter<std::fs::File>>,

@@ -3,7 +3,11 @@
 //! later than the tick, and the robot follows the recorded joint states interpolated in time.
 //! Deterministic: the same recording and configuration give the same outputs.
 
+mod silhouette;
+
 use crate::config::Config;
+use crate::init::{self, FirstFrames};
+use silhouette::SilhouetteMeter;
 use crate::correct::View;
 use crate::math::Pose;
 use crate::msgs::{self, CameraInfo, Image, JointState, TfMessage};
@@ -61,6 +65,12 @@ pub struct Metrics {
     /// Per-tick tracking error per object: `(t, metres)`; also written to `tracking_error.csv`.
     #[serde(skip)]
     pub error_series: BTreeMap<String, Vec<(f64, f32)>>,
+    /// How the world was initialised from the first frames (when no scenario is configured).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub init: Option<init::InitReport>,
+    /// Per object and camera: IoU of the tracked object's rendered silhouette with its colour mask.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub silhouette_iou: BTreeMap<String, BTreeMap<String, silhouette::IouStats>>,
     /// With `--compare`: the same recording replayed physics-only and visual-forces-only.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub comparison: BTreeMap<String, Comparison>,
@@ -263,9 +273,31 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     }
     metrics.cameras = streams.cameras.iter().map(|c| c.0.clone()).collect();
     let scene_config = &config.scene;
-    let name = scene_config.scenario.as_deref().context("config scene.scenario is not set: replay builds its world from a built-in scenario until initialisation from cameras exists")?;
-    let offset = Pose::new(scene_config.offset_position, Quat::from_rotation_z(scene_config.offset_yaw));
-    let mut scene = scenario::build(name, offset)?;
+    let mut scene = match scene_config.scenario.as_deref() {
+        Some(name) => scenario::build(name, Pose::new(scene_config.offset_position, Quat::from_rotation_z(scene_config.offset_yaw)))?,
+        None => {
+            // Initialise from the first frames of every camera.
+            let wanted = scene_config.table.as_ref().map_or(1, |t| t.fit_frames.max(1) as usize);
+            let decoded: Vec<Vec<Vec<Vec3>>> = streams.cameras.iter().zip(&streams.images).map(|((_, cam), imgs)| imgs.iter().filter_map(|(_, img)| decode_image(img, cam).ok()).take(wanted).collect()).collect();
+            let frames: Vec<FirstFrames> = streams
+                .cameras
+                .iter()
+                .zip(&decoded)
+                .map(|((name, cam), imgs)| FirstFrames { name: name.clone(), camera: *cam, images: imgs.iter().map(|i| i.as_slice()).collect() })
+                .collect();
+            if opts.progress {
+                eprintln!("initialising the scene from the first frames of {} cameras", frames.len());
+            }
+            let (scene, report) = init::build_scene(config, &frames, opts.progress)?;
+            for (name, o) in &report.objects {
+                if let Some(a) = &o.alignment {
+                    eprintln!("{name}: aligned to its masks, moved {:.1} mm, turned {:.1} deg, silhouette IoU {:.2} -> {:.2} ({:.1} s)", a.moved_mm, a.turned_deg, a.iou_before, a.iou_after, a.seconds);
+                }
+            }
+            metrics.init = Some(report);
+            scene
+        }
+    };
     // The robot follows the recorded joint states.
     if let Some((robot, trajectory)) = &mut scene.robot {
         let mut tracker = JointStateTracker::new(&robot.model);
@@ -302,6 +334,16 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     let t_end = streams.images.iter().filter_map(|s| s.last().map(|f| f.0)).fold(f64::NEG_INFINITY, f64::max);
     scene.world.time = t0;
     let mut tracker = Tracker::new(scene, &config, opts.visual_forces)?;
+    let mut meters: Vec<SilhouetteMeter> = if config.scene.scenario.is_none() {
+        config
+            .scene
+            .objects
+            .iter()
+            .filter_map(|o| Some(SilhouetteMeter::new(tracker.scene.world.shape_id(&o.name)?, &o.name, o.mask?, streams.cameras.len(), &config.render)))
+            .collect()
+    } else {
+        Vec::new()
+    };
     let dt = config.physics.dt as f64;
     let ticks = ((t_end - t0) / dt + 1e-6).floor().max(0.0) as usize;
     let truth = {
@@ -320,6 +362,9 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     let max_age = config.correct.max_image_age as f64;
     let progress = if opts.progress { indicatif::ProgressBar::new(ticks as u64) } else { indicatif::ProgressBar::hidden() };
     let mut loss_sum = 0.0f32;
+    // Contact sheet: six moments spread over the recording.
+    let sheet_ticks: Vec<usize> = (0..6).map(|i| 1 + i * ticks.saturating_sub(1) / 5).collect();
+    let mut sheet = Vec::new();
     let clock = std::time::Instant::now();
     for k in 1..=ticks {
         let t = t0 + k as f64 * dt;
@@ -355,6 +400,23 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         }
         if let Some(s) = tracker.tick(&views)? {
             loss_sum += s.loss_before;
+        }
+        // Silhouettes of the corrected state against the images it was corrected with.
+        let sheet_row = sheet_ticks.contains(&k);
+        let mut row = Vec::new();
+        for meter in &mut meters {
+            for (c, ((_, cam), img)) in streams.cameras.iter().zip(&latest).enumerate() {
+                let Some((stamp, pixels)) = img else { continue };
+                if t - stamp > max_age {
+                    continue;
+                }
+                if let Some(overlay) = meter.measure(&tracker.scene.world, c, cam, pixels, t, sheet_row) {
+                    row.push((cam.width, cam.height, overlay));
+                }
+            }
+        }
+        if !row.is_empty() {
+            sheet.push(row);
         }
         writer.record(&tracker.scene.world)?;
         if let Some(truth) = &truth {
@@ -399,6 +461,21 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         std::fs::write(out.join("tracking_error.csv"), csv)?;
     }
     metrics.error_series = errors;
+    if !meters.is_empty() {
+        let mut csv = String::from("t,object,camera,iou\n");
+        for meter in &meters {
+            let per_camera = metrics.silhouette_iou.entry(meter.object.clone()).or_default();
+            for (c, series) in meter.series.iter().enumerate() {
+                let camera = &streams.cameras[c].0;
+                per_camera.insert(camera.clone(), silhouette::iou_stats(&series.iter().map(|s| s.1).collect::<Vec<_>>()));
+                for (t, v) in series {
+                    csv += &format!("{t:.6},{},{camera},{v:.4}\n", meter.object);
+                }
+            }
+        }
+        std::fs::write(out.join("silhouette_iou.csv"), csv)?;
+        silhouette::write_contact_sheet(&out.join("contact_sheet.png"), &sheet)?;
+    }
     std::fs::write(out.join("metrics.json"), serde_json::to_string_pretty(&metrics)?)?;
     Ok(metrics)
 }

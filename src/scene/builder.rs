@@ -39,6 +39,25 @@ impl WorldBuilder {
         self.add_solid(name, ShapeKind::Rigid, Phase::Dynamic, body_points, radius, 1.0 / particle_mass, pose, colour)
     }
 
+    /// A rigid object from a model with its own particles (body frame, per-particle radii) and
+    /// Gaussians (body frame), placed at the model's pose; each Gaussian is bonded to its closest
+    /// particle.
+    pub fn add_rigid_model(&mut self, name: &str, model: &crate::init::ObjectModel, particle_mass: f32) -> ShapeId {
+        let shape = self.world.shapes.len() as ShapeId;
+        let first = self.world.particles.len();
+        for &(r, radius) in &model.particles {
+            self.world.particles.push(model.pose.transform_point(r), 1.0 / particle_mass, radius, shape, Phase::Dynamic, r);
+        }
+        for g in &model.gaussians {
+            // The particle's frame has the body's rotation, so the offset in it is the body-frame one.
+            let closest = (0..model.particles.len()).min_by(|&a, &b| g.mean.distance_squared(model.particles[a].0).total_cmp(&g.mean.distance_squared(model.particles[b].0))).unwrap_or(0);
+            self.world.gaussians.push((first + closest) as u32, g.mean - model.particles[closest].0, g.rotation, g.scale, g.opacity, g.colour);
+        }
+        let s = self.world.shapes.push(name, ShapeKind::Rigid, first..self.world.particles.len(), model.pose);
+        self.world.shapes.update_mass_properties(s, &self.world.particles);
+        s
+    }
+
     /// A kinematic body (robot link, pusher) that follows its `Shapes::target` pose.
     pub fn add_kinematic(&mut self, name: &str, body_points: &[Vec3], radius: f32, pose: Pose, colour: Vec3) -> ShapeId {
         self.add_solid(name, ShapeKind::Kinematic, Phase::Kinematic, body_points, radius, 0.0, pose, colour)

@@ -110,6 +110,23 @@ impl World {
         mass_weighted_mean(self.shapes.range(shape), &self.particles.velocity, &self.particles.inv_mass)
     }
 
+    /// Move a shape rigidly by `motion` (applied in the world frame) and bring it to rest.
+    pub fn move_shape(&mut self, shape: ShapeId, motion: Pose) {
+        for i in self.shapes.range(shape) {
+            self.particles.position[i] = motion.transform_point(self.particles.position[i]);
+            self.particles.velocity[i] = Vec3::ZERO;
+        }
+        let s = shape as usize;
+        self.shapes.pose[s] = motion.mul(&self.shapes.pose[s]);
+        self.shapes.target[s] = motion.mul(&self.shapes.target[s]);
+    }
+
+    /// Indices of the Gaussians bonded to `shape`'s particles.
+    pub fn gaussians_of(&self, shape: ShapeId) -> Vec<usize> {
+        let range = self.shapes.range(shape);
+        (0..self.gaussians.len()).filter(|&i| self.gaussians.parent[i] != NO_PARENT && range.contains(&(self.gaussians.parent[i] as usize))).collect()
+    }
+
     /// Largest distance of a rigid shape's particles from where its current pose puts their rest
     /// positions: zero for a perfectly rigid body.
     pub fn rigid_deviation(&self, shape: ShapeId) -> f32 {

@@ -1,0 +1,163 @@
+//! Initialisation: the tracker's world at the start of a recording or a live session. Objects
+//! come from files (`ObjectModel`, e.g. the embodied-gaussians JSON format) or from RGB-D and
+//! masks; the table is fitted to the first frames; objects are aligned to their masks before
+//! tracking starts. This module builds worlds; it never steps them.
+
+pub mod align;
+pub mod mask;
+pub mod table;
+
+pub use mask::ColourMask;
+
+use crate::config::Config;
+use crate::math::Pose;
+use crate::render::Camera;
+use crate::scene::WorldBuilder;
+use crate::scene::builtin::Scene;
+use crate::world::NO_PARENT;
+use anyhow::{Context, Result, bail};
+use glam::{Quat, Vec3};
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// A Gaussian in an object's body frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BodyGaussian {
+    pub mean: Vec3,
+    pub rotation: Quat,
+    /// Standard deviations, m.
+    pub scale: Vec3,
+    pub opacity: f32,
+    /// RGB in [0, 1].
+    pub colour: Vec3,
+}
+
+/// An object as particles and Gaussians in its body frame, with its body-to-world pose.
+#[derive(Clone, Debug)]
+pub struct ObjectModel {
+    pub name: String,
+    pub pose: Pose,
+    /// Body-frame position and radius of each particle.
+    pub particles: Vec<(Vec3, f32)>,
+    pub gaussians: Vec<BodyGaussian>,
+}
+
+/// The first frames of one camera.
+pub struct FirstFrames<'a> {
+    pub name: String,
+    pub camera: Camera,
+    /// Linear RGB images, oldest first; the first one is the start of tracking.
+    pub images: Vec<&'a [Vec3]>,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ObjectInit {
+    pub particles: usize,
+    pub gaussians: usize,
+    pub mass_kg: f32,
+    pub alignment: Option<align::Alignment>,
+}
+
+/// What initialisation did and how long it took.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct InitReport {
+    pub objects: BTreeMap<String, ObjectInit>,
+    pub table: Option<table::TableFit>,
+    pub seconds: f64,
+}
+
+/// Grow a mask by `radius` pixels (square neighbourhood).
+pub fn dilate(mask: &[bool], width: u32, height: u32, radius: i32) -> Vec<bool> {
+    let mut out = vec![false; mask.len()];
+    let (w, h) = (width as i32, height as i32);
+    for y in 0..h {
+        for x in 0..w {
+            if !mask[(y * w + x) as usize] {
+                continue;
+            }
+            for yy in (y - radius).max(0)..=(y + radius).min(h - 1) {
+                for xx in (x - radius).max(0)..=(x + radius).min(w - 1) {
+                    out[(yy * w + xx) as usize] = true;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Build the world of `config.scene.objects` and `config.scene.table` from the first frames:
+/// load the objects, align each object that has a colour mask to it, then fit the table to the
+/// frames with the objects' pixels left out.
+pub fn build_scene(config: &Config, frames: &[FirstFrames], progress: bool) -> Result<(Scene, InitReport)> {
+    let clock = std::time::Instant::now();
+    if config.scene.objects.is_empty() {
+        bail!("the configuration names no scene.scenario and no scene.objects: nothing to track");
+    }
+    let mut report = InitReport::default();
+    let mut builder = WorldBuilder::new();
+    let mut shapes = Vec::new();
+    for object in &config.scene.objects {
+        if object.name.is_empty() {
+            bail!("every scene.objects entry needs a name");
+        }
+        let name = object.name.clone();
+        let model = crate::import::embodied_gaussians::load_object(&object.embodied_gaussians).with_context(|| format!("object '{name}'"))?;
+        if !(object.mass.is_finite() && object.mass > 0.0) {
+            bail!("object '{name}': mass must be positive, got {}", object.mass);
+        }
+        let s = builder.add_rigid_model(&name, &model, object.mass / model.particles.len() as f32);
+        report.objects.insert(name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None });
+        shapes.push((s, name, object));
+    }
+    let mut world = builder.build();
+    let first: Vec<(&FirstFrames, &[Vec3])> = frames.iter().filter_map(|f| f.images.first().map(|i| (f, *i))).collect();
+    // Pixels of every object in every camera's frames, left out of the table fit.
+    let mut object_pixels: Vec<Vec<Vec<bool>>> = frames.iter().map(|f| f.images.iter().map(|_| vec![false; (f.camera.width * f.camera.height) as usize]).collect()).collect();
+    for (s, name, object) in &shapes {
+        let Some(mask) = object.mask else { continue };
+        for (f, frame) in frames.iter().enumerate() {
+            for (k, image) in frame.images.iter().enumerate() {
+                let m = dilate(&mask.apply(image), frame.camera.width, frame.camera.height, 3);
+                object_pixels[f][k].iter_mut().zip(m).for_each(|(a, b)| *a |= b);
+            }
+        }
+        if object.align_at_start && !first.is_empty() {
+            let views: Vec<align::MaskView> = first.iter().map(|(f, image)| align::MaskView { camera: f.camera, mask: mask.apply(image) }).collect();
+            let a = align::align_on_table(&mut world, *s, &views, config.physics.ground.normal, &config.render);
+            if let Some(o) = report.objects.get_mut(name) {
+                o.alignment = Some(a);
+            }
+        }
+    }
+    if let Some(table_config) = &config.scene.table {
+        // Objects without a mask: leave out where they render now (after alignment).
+        let cloud = crate::render::GaussianCloud::from_world(&world);
+        let mut renderer = crate::render::cpu::CpuRenderer::new(config.render.clone());
+        for (f, frame) in frames.iter().enumerate() {
+            let out = renderer.forward(&cloud, &frame.camera, crate::render::Roi::full(&frame.camera));
+            let rendered = dilate(&out.alpha.iter().map(|a| *a > 0.05).collect::<Vec<_>>(), frame.camera.width, frame.camera.height, 3);
+            for k in 0..frame.images.len() {
+                object_pixels[f][k].iter_mut().zip(&rendered).for_each(|(a, b)| *a |= *b);
+            }
+        }
+        let fit_frames: Vec<table::FitFrame> = frames
+            .iter()
+            .zip(object_pixels)
+            .flat_map(|(f, ignores)| f.images.iter().zip(ignores).take(table_config.fit_frames.max(1) as usize).map(move |(image, ignore)| table::FitFrame { camera: f.camera, image, ignore }))
+            .collect();
+        let mean_colour = {
+            let (sum, n) = fit_frames.iter().flat_map(|f| f.image.iter().zip(&f.ignore)).filter(|(_, i)| !**i).fold((Vec3::ZERO, 0usize), |(s, n), (c, _)| (s + *c, n + 1));
+            if n > 0 { sum / n as f32 } else { Vec3::splat(0.5) }
+        };
+        let mut disks = table::table_disks(table_config, &config.physics.ground, mean_colour);
+        let fit = table::fit_table(&mut disks, &fit_frames, table_config, &config.render, progress)?;
+        for i in 0..disks.len() {
+            let r = disks.rotation[i];
+            let scale = Vec3::new(disks.log_scale[i].x.exp(), disks.log_scale[i].y.exp(), disks.log_scale[i].z.exp());
+            world.gaussians.push(NO_PARENT, disks.mean[i], Quat::from_xyzw(r.x, r.y, r.z, r.w).normalize(), scale, crate::render::sigmoid(disks.opacity_logit[i]), disks.colour[i]);
+        }
+        report.table = Some(fit);
+    }
+    report.seconds = clock.elapsed().as_secs_f64();
+    Ok((Scene { world, scripts: Vec::new(), robot: None }, report))
+}
