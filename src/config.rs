@@ -50,11 +50,14 @@ pub struct ObjectConfig {
     pub mask: Option<ColourMask>,
     /// Before tracking, move the object on the table to best match `mask` in the first frames.
     pub align_at_start: bool,
+    /// Adam steps fitting the object's colours to the inside of `mask` in the first frame, after
+    /// the alignment (the file's colours were captured under other lighting); 0 keeps them.
+    pub colour_fit_steps: u32,
 }
 
 impl Default for ObjectConfig {
     fn default() -> Self {
-        Self { name: String::new(), embodied_gaussians: PathBuf::new(), mass: 0.2, mask: None, align_at_start: true }
+        Self { name: String::new(), embodied_gaussians: PathBuf::new(), mass: 0.2, mask: None, align_at_start: true, colour_fit_steps: 100 }
     }
 }
 
@@ -66,17 +69,23 @@ pub struct TableConfig {
     pub max: Vec2,
     /// Grid spacing, m.
     pub spacing: f32,
-    /// Adam steps on the disks' colours, first frames used per camera, and the learning rate.
+    /// Adam steps on the disks' colours, and frames used per camera: the first one and others
+    /// spread over the first `fit_span` seconds (0: the first frames).
     pub fit_steps: u32,
     pub fit_frames: u32,
+    pub fit_span: f32,
     pub lr: f32,
     /// The fit renders at this fraction of the camera resolution (the disks are coarser than pixels).
     pub fit_resolution: f32,
+    /// The disks lie this far (m) below the ground plane: object Gaussians that reach into the
+    /// table (the soft bottom of a reconstruction) would otherwise be hidden by it, and the
+    /// photometric loss would lift the object to show them.
+    pub drop: f32,
 }
 
 impl Default for TableConfig {
     fn default() -> Self {
-        Self { min: Vec2::splat(-0.5), max: Vec2::splat(0.5), spacing: 0.01, fit_steps: 500, fit_frames: 3, lr: 0.02, fit_resolution: 0.5 }
+        Self { min: Vec2::splat(-0.5), max: Vec2::splat(0.5), spacing: 0.01, fit_steps: 500, fit_frames: 3, fit_span: 0.0, lr: 0.02, fit_resolution: 0.5, drop: 0.01 }
     }
 }
 

@@ -168,21 +168,41 @@ impl Corrector {
             .collect();
         let targets: Vec<Vec<Vec3>> = views.iter().zip(&windows).map(|(v, w)| crop(v.image, v.camera.width, *w)).collect();
         let weights: Vec<Vec<f32>> = if self.config.occluder_threshold > 0.0 {
-            let palette = palette(free.iter().map(|&i| cloud.colour[i]));
+            let mut objects = GaussianCloud::default();
+            free.iter().for_each(|&i| objects.push(cloud.get(i)));
+            let threshold = self.config.occluder_threshold;
             let mut weights = Vec::with_capacity(views.len());
             for ((v, w), target) in views.iter().zip(&windows).zip(&targets) {
+                if w.pixels() == 0 {
+                    weights.push(Vec::new());
+                    continue;
+                }
+                // What the objects look like here, as rendered (single Gaussians can be outliers).
+                let rendered = self.renderer.forward(&objects, &v.camera, *w)?;
+                let palette = palette(rendered.colour.iter().zip(&rendered.alpha).filter(|(_, a)| **a > 0.5).map(|(c, a)| *c / *a), 0.01);
                 let background = crop(self.background(world, &v.camera)?, v.camera.width, *w);
-                let t2 = self.config.occluder_threshold * self.config.occluder_threshold;
-                let explained = |o: Vec3, b: Vec3| o.distance_squared(b) <= t2 || palette.iter().any(|c| o.distance_squared(*c) <= t2);
+                let explained = |o: Vec3, b: Vec3| same_surface(o, b, threshold) || palette.iter().any(|c| same_surface(o, *c, threshold));
                 let wv: Vec<f32> = target.iter().zip(&background).map(|(o, b)| if explained(*o, *b) { 1.0 } else { 0.0 }).collect();
                 stats.occluded_pixels += wv.iter().filter(|x| **x == 0.0).count();
+                if let Ok(dir) = std::env::var("PEGS_DEBUG_OCCLUDER") {
+                    static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+                    let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    if n < 6 {
+                        let mut img = image::RgbImage::new(w.width() * 3, w.height());
+                        for y in 0..w.height() { for x in 0..w.width() { let k = (y * w.width() + x) as usize;
+                            let f = |c: Vec3| { let c = (c.clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round(); image::Rgb([c.x as u8, c.y as u8, c.z as u8]) };
+                            img.put_pixel(x, y, f(target[k])); img.put_pixel(x + w.width(), y, f(background[k])); img.put_pixel(x + 2 * w.width(), y, f(Vec3::splat(wv[k])));
+                        }}
+                        let _ = img.save(format!("{dir}/occ{n}.png"));
+                        eprintln!("palette {n}: {palette:?}");
+                    }
+                }
                 weights.push(wv);
             }
             weights
         } else {
             targets.iter().map(|t| vec![1.0; t.len()]).collect()
         };
-
         let n = free.len();
         let start: Vec<Vec3> = free.iter().map(|&i| cloud.mean[i]).collect();
         let mut means: Vec<f32> = start.iter().flat_map(|m| m.to_array()).collect();
@@ -293,17 +313,33 @@ impl Corrector {
     }
 }
 
-/// The distinct colours of a set (quantised to 1/20), which the occluder test compares against.
-fn palette(colours: impl Iterator<Item = Vec3>) -> Vec<Vec3> {
-    let mut seen = std::collections::BTreeSet::new();
-    let mut out = Vec::new();
+/// Whether `observed` can be the surface of colour `model` under other light: its brightness
+/// within a factor of 2.5 of the model's (or both dark) and its chromaticity within `threshold`
+/// (the distance of `observed` from the line through `model`).
+fn same_surface(observed: Vec3, model: Vec3, threshold: f32) -> bool {
+    const DARK: f32 = 0.15;
+    let (lo, lm) = (observed.length(), model.length());
+    if lo < DARK && lm < DARK {
+        return true;
+    }
+    let Some(axis) = model.try_normalize() else { return false };
+    let along = observed.dot(axis);
+    let ratio = along / lm.max(1e-6);
+    (0.4..=2.5).contains(&ratio) && (observed - along * axis).length() <= threshold
+}
+
+/// The colours of a set (quantised to 1/20) that make up at least `min_share` of it.
+fn palette(colours: impl Iterator<Item = Vec3>, min_share: f32) -> Vec<Vec3> {
+    let mut bins: std::collections::BTreeMap<[i32; 3], (Vec3, usize)> = std::collections::BTreeMap::new();
+    let mut total = 0usize;
     for c in colours {
         let key = (c.clamp(Vec3::ZERO, Vec3::ONE) * 20.0).round().as_ivec3().to_array();
-        if seen.insert(key) {
-            out.push(c);
-        }
+        let bin = bins.entry(key).or_insert((Vec3::ZERO, 0));
+        bin.0 += c;
+        bin.1 += 1;
+        total += 1;
     }
-    out
+    bins.into_values().filter(|(_, n)| *n as f32 >= min_share * total as f32).map(|(sum, n)| sum / n as f32).collect()
 }
 
 /// Replace the forces on each rigid shape's particles by the distribution that gives the same

@@ -44,6 +44,47 @@ impl ColourMask {
     }
 }
 
+impl ColourMask {
+    /// The object's pixels: the colour band, keeping only connected regions (8-neighbourhood) of
+    /// at least a tenth of the largest one and 20 pixels, so stray pixels of similar colour
+    /// elsewhere (reflections, lamps) do not count while an object cut in two by an occluder does.
+    pub fn segment(&self, image: &[Vec3], width: u32, height: u32) -> Vec<bool> {
+        let raw = self.apply(image);
+        let (w, h) = (width as i64, height as i64);
+        let mut label = vec![0u32; raw.len()];
+        let mut sizes = vec![0usize];
+        for start in 0..raw.len() {
+            if !raw[start] || label[start] != 0 {
+                continue;
+            }
+            let id = sizes.len() as u32;
+            let mut stack = vec![start];
+            label[start] = id;
+            let mut size = 0;
+            while let Some(k) = stack.pop() {
+                size += 1;
+                let (x, y) = (k as i64 % w, k as i64 / w);
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let (nx, ny) = (x + dx, y + dy);
+                        if nx >= 0 && ny >= 0 && nx < w && ny < h {
+                            let n = (ny * w + nx) as usize;
+                            if raw[n] && label[n] == 0 {
+                                label[n] = id;
+                                stack.push(n);
+                            }
+                        }
+                    }
+                }
+            }
+            sizes.push(size);
+        }
+        let largest = sizes.iter().copied().max().unwrap_or(0);
+        let keep: Vec<bool> = sizes.iter().map(|&s| s > 0 && s >= 20 && s * 10 >= largest).collect();
+        label.iter().map(|&l| l != 0 && keep[l as usize]).collect()
+    }
+}
+
 /// Intersection over union of two masks of the same size (1 when both are empty).
 pub fn iou(a: &[bool], b: &[bool]) -> f32 {
     let (mut inter, mut union) = (0usize, 0usize);
@@ -84,6 +125,27 @@ mod tests {
         assert!(!reds.contains(Vec3::new(0.9, 0.8, 0.8)), "pale: not saturated");
         assert!(!reds.contains(Vec3::new(0.2, 0.02, 0.02)), "too dark");
         assert!(!reds.contains(Vec3::new(0.1, 0.9, 0.1)));
+    }
+
+    #[test]
+    fn segmenting_drops_small_stray_regions_and_keeps_a_split_object() {
+        let red = Vec3::new(0.9, 0.1, 0.1);
+        let mask = ColourMask { hue_min: 340.0, hue_max: 20.0, saturation_min: 0.5, value_min: 0.3 };
+        let (w, h) = (40u32, 20u32);
+        let mut image = vec![Vec3::splat(0.1); (w * h) as usize];
+        let mut paint = |x0: u32, x1: u32, y0: u32, y1: u32| {
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    image[(y * w + x) as usize] = red;
+                }
+            }
+        };
+        paint(2, 12, 2, 12); // 100 px, one half of an object
+        paint(14, 22, 2, 12); // 80 px, its other half beyond an occluder
+        paint(30, 33, 15, 18); // 9 px stray reflection
+        let seg = mask.segment(&image, w, h);
+        assert_eq!(seg.iter().filter(|x| **x).count(), 180);
+        assert!(!seg[(16 * w + 31) as usize]);
     }
 
     #[test]

@@ -5,6 +5,7 @@
 
 pub mod align;
 pub mod mask;
+pub mod rgbd;
 pub mod table;
 
 pub use mask::ColourMask;
@@ -56,13 +57,14 @@ pub struct ObjectInit {
     pub gaussians: usize,
     pub mass_kg: f32,
     pub alignment: Option<align::Alignment>,
+    pub colour_fit: Option<table::ColourFit>,
 }
 
 /// What initialisation did and how long it took.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct InitReport {
     pub objects: BTreeMap<String, ObjectInit>,
-    pub table: Option<table::TableFit>,
+    pub table: Option<table::ColourFit>,
     pub seconds: f64,
 }
 
@@ -106,7 +108,7 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], progress: bool) -> R
             bail!("object '{name}': mass must be positive, got {}", object.mass);
         }
         let s = builder.add_rigid_model(&name, &model, object.mass / model.particles.len() as f32);
-        report.objects.insert(name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None });
+        report.objects.insert(name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None, colour_fit: None });
         shapes.push((s, name, object));
     }
     let mut world = builder.build();
@@ -117,15 +119,36 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], progress: bool) -> R
         let Some(mask) = object.mask else { continue };
         for (f, frame) in frames.iter().enumerate() {
             for (k, image) in frame.images.iter().enumerate() {
-                let m = dilate(&mask.apply(image), frame.camera.width, frame.camera.height, 3);
+                let m = dilate(&mask.apply(image), frame.camera.width, frame.camera.height, 6);
                 object_pixels[f][k].iter_mut().zip(m).for_each(|(a, b)| *a |= b);
             }
         }
         if object.align_at_start && !first.is_empty() {
-            let views: Vec<align::MaskView> = first.iter().map(|(f, image)| align::MaskView { camera: f.camera, mask: mask.apply(image) }).collect();
+            let views: Vec<align::MaskView> = first.iter().map(|(f, image)| align::MaskView { camera: f.camera, mask: mask.segment(image, f.camera.width, f.camera.height) }).collect();
             let a = align::align_on_table(&mut world, *s, &views, config.physics.ground.normal, &config.render);
             if let Some(o) = report.objects.get_mut(name) {
                 o.alignment = Some(a);
+            }
+        }
+        // The object's colours under this recording's lighting: fitted to the inside of its masks.
+        if object.colour_fit_steps > 0 && !first.is_empty() {
+            let ids = world.gaussians_of(*s);
+            let full = crate::render::GaussianCloud::from_world(&world);
+            let mut cloud = crate::render::GaussianCloud::default();
+            ids.iter().for_each(|&i| cloud.push(full.get(i)));
+            let fit_frames: Vec<table::FitFrame> = first
+                .iter()
+                .map(|(f, image)| {
+                    let outside: Vec<bool> = mask.segment(image, f.camera.width, f.camera.height).iter().map(|m| !m).collect();
+                    table::FitFrame { camera: f.camera, image, ignore: dilate(&outside, f.camera.width, f.camera.height, 2) }
+                })
+                .collect();
+            let fit = table::fit_colours(&mut cloud, &fit_frames, object.colour_fit_steps, 0.02, 1.0, &config.render, progress)?;
+            for (k, &i) in ids.iter().enumerate() {
+                world.gaussians.colour[i] = cloud.colour[k];
+            }
+            if let Some(o) = report.objects.get_mut(name) {
+                o.colour_fit = Some(fit);
             }
         }
     }

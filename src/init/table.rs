@@ -18,8 +18,8 @@ pub struct FitFrame<'a> {
 }
 
 #[derive(Clone, Debug, Default, Serialize)]
-pub struct TableFit {
-    pub disks: usize,
+pub struct ColourFit {
+    pub gaussians: usize,
     pub steps: u32,
     /// Mean absolute colour error over the fitted pixels, before and after.
     pub error_before: f32,
@@ -27,7 +27,7 @@ pub struct TableFit {
     pub seconds: f64,
 }
 
-/// Disks on the ground plane over the configured rectangle, coloured `colour`.
+/// Disks on (just below) the ground plane over the configured rectangle, coloured `colour`.
 pub fn table_disks(table: &TableConfig, ground: &GroundConfig, colour: Vec3) -> GaussianCloud {
     let n = ground.normal.normalize_or(Vec3::Z);
     let q = Quat::from_rotation_arc(Vec3::Z, n);
@@ -37,7 +37,7 @@ pub fn table_disks(table: &TableConfig, ground: &GroundConfig, colour: Vec3) -> 
         for ix in 0..steps(table.min.x, table.max.x) {
             let (x, y) = (table.min.x + ix as f32 * table.spacing, table.min.y + iy as f32 * table.spacing);
             // On the plane n . p = height, directly above or below (x, y).
-            let z = (ground.height - n.x * x - n.y * y) / n.z.max(1e-3);
+            let z = (ground.height - table.drop - n.x * x - n.y * y) / n.z.max(1e-3);
             let sigma = 0.6 * table.spacing;
             cloud.push(GaussianParams {
                 mean: Vec3::new(x, y, z),
@@ -49,6 +49,42 @@ pub fn table_disks(table: &TableConfig, ground: &GroundConfig, colour: Vec3) -> 
         }
     }
     cloud
+}
+
+/// The colour under each Gaussian's centre: per channel, the median over the frames that see the
+/// centre (inside the image, not ignored); None where fewer than two cameras do. A direct estimate that the fit
+/// starts from and is held near, so Gaussians seen only through their neighbours stay plausible.
+pub fn projected_colours(cloud: &GaussianCloud, frames: &[FitFrame]) -> Vec<Option<Vec3>> {
+    cloud
+        .mean
+        .iter()
+        .map(|&p| {
+            let mut samples: Vec<Vec3> = Vec::new();
+            let mut cameras: Vec<Camera> = Vec::new();
+            for f in frames {
+                let (u, v, z) = f.camera.project(p);
+                if z > 0.0 && u >= 0.0 && v >= 0.0 && (u as u32) < f.camera.width && (v as u32) < f.camera.height {
+                    let k = (v as u32 * f.camera.width + u as u32) as usize;
+                    if !f.ignore[k] {
+                        samples.push(f.image[k]);
+                        if !cameras.contains(&f.camera) {
+                            cameras.push(f.camera);
+                        }
+                    }
+                }
+            }
+            // A single camera cannot tell the table from something standing on it.
+            if cameras.len() < 2 {
+                return None;
+            }
+            let median = |axis: usize| {
+                let mut c: Vec<f32> = samples.iter().map(|s| s[axis]).collect();
+                c.sort_by(f32::total_cmp);
+                c[c.len() / 2]
+            };
+            Some(Vec3::new(median(0), median(1), median(2)))
+        })
+        .collect()
 }
 
 /// Box-filter an image (and OR its ignore mask) down by an integer factor, with the camera.
@@ -79,14 +115,27 @@ fn shrink(frame: &FitFrame, factor: u32) -> (Camera, Vec<Vec3>, Vec<bool>) {
     (camera, image, ignore)
 }
 
-/// Fit the disks' colours to `frames` with Adam on a robust (smoothed L1) colour loss: where the
-/// cameras disagree about a disk (something stood on it in one view), the majority wins.
-pub fn fit_table(cloud: &mut GaussianCloud, frames: &[FitFrame], table: &TableConfig, render: &RenderSettings, progress: bool) -> Result<TableFit> {
+/// Fit the disks' colours to `frames`: start from the colours under their centres (disks no
+/// frame sees keep theirs), then `fit_colours`.
+pub fn fit_table(cloud: &mut GaussianCloud, frames: &[FitFrame], table: &TableConfig, render: &RenderSettings, progress: bool) -> Result<ColourFit> {
+    let seen = projected_colours(cloud, frames);
+    for (c, seen) in cloud.colour.iter_mut().zip(seen) {
+        if let Some(seen) = seen {
+            *c = seen;
+        }
+    }
+    fit_colours(cloud, frames, table.fit_steps, table.lr, table.fit_resolution, render, progress)
+}
+
+/// Fit the colours of a cloud to `frames` with Adam on a robust (smoothed L1) colour loss, at
+/// `resolution` times the cameras' size: where the cameras disagree about a Gaussian (something
+/// stood in front of it in one view), the majority wins.
+pub fn fit_colours(cloud: &mut GaussianCloud, frames: &[FitFrame], steps: u32, lr: f32, resolution: f32, render: &RenderSettings, progress: bool) -> Result<ColourFit> {
     let clock = std::time::Instant::now();
     if frames.iter().any(|f| f.image.len() != (f.camera.width * f.camera.height) as usize || f.ignore.len() != f.image.len()) {
         bail!("table fit: an image or mask does not match its camera");
     }
-    let factor = (1.0 / table.fit_resolution.clamp(0.05, 1.0)).round() as u32;
+    let factor = (1.0 / resolution.clamp(0.05, 1.0)).round() as u32;
     let shrunk: Vec<_> = frames.iter().map(|f| shrink(f, factor)).collect();
     let mut renderer = CpuRenderer::new(render.clone());
     let mut adam = Adam::new(0.9, 0.999, 1e-8);
@@ -94,10 +143,34 @@ pub fn fit_table(cloud: &mut GaussianCloud, frames: &[FitFrame], table: &TableCo
     adam.reset(3 * n);
     let mut colours: Vec<f32> = cloud.colour.iter().flat_map(|c| c.to_array()).collect();
     const EPS: f32 = 0.02;
-    let bar = if progress { indicatif::ProgressBar::new(table.fit_steps as u64 + 1) } else { indicatif::ProgressBar::hidden() };
-    bar.set_message("fitting the table");
-    let mut fit = TableFit { disks: n, steps: table.fit_steps, ..Default::default() };
-    for step in 0..=table.fit_steps {
+    // Pixels' worth of weight (sum of a Gaussian's blending weights over the fitted pixels).
+    const MIN_VISIBILITY: f32 = 1.0;
+    // Per Gaussian, the cameras that see it (distinct poses among the frames).
+    let mut views: Vec<Camera> = Vec::new();
+    let mut visibility = vec![Vec::<f32>::new(); n];
+    for (camera, _, ignore) in &shrunk {
+        let view = match views.iter().position(|c| c == camera) {
+            Some(v) => v,
+            None => {
+                views.push(*camera);
+                views.len() - 1
+            }
+        };
+        renderer.forward(cloud, camera, Roi::full(camera));
+        let ones: Vec<Vec3> = ignore.iter().map(|&i| if i { Vec3::ZERO } else { Vec3::ONE }).collect();
+        let g = renderer.backward(cloud, &PixelGrads { colour: ones, ..Default::default() })?;
+        for (v, c) in visibility.iter_mut().zip(&g.colour) {
+            v.resize(views.len(), 0.0);
+            v[view] += c.x;
+        }
+    }
+    // Fitted: Gaussians that two cameras see (one camera cannot tell the table from something
+    // standing on it), or all of them when there is only one camera.
+    let needed = views.len().min(2);
+    let fitted: Vec<bool> = visibility.iter().map(|v| v.iter().filter(|w| **w >= MIN_VISIBILITY).count() >= needed).collect();
+    let bar = if progress { indicatif::ProgressBar::new(steps as u64 + 1) } else { indicatif::ProgressBar::hidden() };
+        let mut fit = ColourFit { gaussians: n, steps, ..Default::default() };
+    for step in 0..=steps {
         for (i, c) in cloud.colour.iter_mut().enumerate() {
             *c = Vec3::from_slice(&colours[3 * i..]);
         }
@@ -115,7 +188,7 @@ pub fn fit_table(cloud: &mut GaussianCloud, frames: &[FitFrame], table: &TableCo
                 counted += 1;
                 d[k] = r / (r * r + Vec3::splat(EPS * EPS)).powf(0.5);
             }
-            if step == table.fit_steps {
+            if step == steps {
                 continue;
             }
             let g = renderer.backward(cloud, &PixelGrads { colour: d, ..Default::default() })?;
@@ -129,11 +202,19 @@ pub fn fit_table(cloud: &mut GaussianCloud, frames: &[FitFrame], table: &TableCo
         if step == 0 {
             fit.error_before = error;
         }
-        if step == table.fit_steps {
+        if step == steps {
             fit.error_after = error;
             break;
         }
-        adam.step(&mut colours, &grad, table.lr);
+        // Adam's normalised steps would push a Gaussian seen only through a few pixels of its
+        // tail to an extreme colour to explain them: those keep their starting colour, as do
+        // those that a single camera sees.
+        for (i, g) in grad.chunks_exact_mut(3).enumerate() {
+            if !fitted[i] {
+                g.fill(0.0);
+            }
+        }
+        adam.step(&mut colours, &grad, lr);
         for c in colours.iter_mut() {
             *c = c.clamp(0.0, 1.0);
         }
@@ -156,7 +237,7 @@ mod tests {
         let mut cloud = table_disks(&table, &ground, Vec3::splat(0.5));
         assert_eq!(cloud.len(), 21 * 21);
         for m in &cloud.mean {
-            assert!((ground.normal.dot(*m) - ground.height).abs() < 1e-6);
+            assert!((ground.normal.dot(*m) - (ground.height - table.drop)).abs() < 1e-6);
         }
         // A camera above the table sees a left half red and a right half blue; a block of pixels
         // in the middle of the red half is masked (e.g. an object) and painted green.

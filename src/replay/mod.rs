@@ -277,8 +277,22 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         Some(name) => scenario::build(name, Pose::new(scene_config.offset_position, Quat::from_rotation_z(scene_config.offset_yaw)))?,
         None => {
             // Initialise from the first frames of every camera.
-            let wanted = scene_config.table.as_ref().map_or(1, |t| t.fit_frames.max(1) as usize);
-            let decoded: Vec<Vec<Vec<Vec3>>> = streams.cameras.iter().zip(&streams.images).map(|((_, cam), imgs)| imgs.iter().filter_map(|(_, img)| decode_image(img, cam).ok()).take(wanted).collect()).collect();
+            // The first image of each camera, then images spread over the table's fit span.
+            let (count, span) = scene_config.table.as_ref().map_or((1, 0.0), |t| (t.fit_frames.max(1) as usize, t.fit_span as f64));
+            let decoded: Vec<Vec<Vec<Vec3>>> = streams
+                .cameras
+                .iter()
+                .zip(&streams.images)
+                .map(|((_, cam), imgs)| {
+                    let usable: Vec<(f64, Vec<Vec3>)> = imgs.iter().filter(|(t, _)| *t <= imgs[0].0 + span + 1e-9).filter_map(|(t, img)| decode_image(img, cam).ok().map(|d| (*t, d))).collect();
+                    let mut picked: Vec<usize> = (0..count).filter_map(|k| {
+                        let target = usable.first()?.0 + span * k as f64 / (count.max(2) - 1) as f64;
+                        (0..usable.len()).min_by(|&a, &b| (usable[a].0 - target).abs().total_cmp(&(usable[b].0 - target).abs()))
+                    }).collect();
+                    picked.dedup();
+                    picked.into_iter().map(|i| usable[i].1.clone()).collect()
+                })
+                .collect();
             let frames: Vec<FirstFrames> = streams
                 .cameras
                 .iter()
@@ -399,6 +413,7 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
             }
         }
         if let Some(s) = tracker.tick(&views)? {
+            if std::env::var("PEGS_DEBUG_FORCE").is_ok() && k % 5 == 0 { eprintln!("force {t:.2} {:?} occluded {}", s.force.first(), s.occluded_pixels); }
             loss_sum += s.loss_before;
         }
         // Silhouettes of the corrected state against the images it was corrected with.

@@ -67,7 +67,7 @@ impl SilhouetteMeter {
     /// silhouette only) when `overlay` is asked for.
     pub fn measure(&mut self, world: &World, c: usize, camera: &Camera, image: &[Vec3], t: f64, overlay: bool) -> Option<Vec<Vec3>> {
         let sil = silhouette(&mut self.renderer, world, self.shape, camera);
-        let mask = self.mask.apply(image);
+        let mask = self.mask.segment(image, camera.width, camera.height);
         self.series[c].push((t, crate::init::mask::iou(&sil, &mask)));
         overlay.then(|| {
             image

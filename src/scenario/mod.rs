@@ -248,6 +248,71 @@ pub fn observe(world: &World, cameras: &[Camera], noise: f32, exposure: f32, see
         .collect()
 }
 
+/// What an ideal depth camera with instance segmentation sees: per pixel, the depth (m along the
+/// optical axis, 0 where the ray meets nothing) of the first solid its centre ray meets, and the
+/// label of that solid (k + 1 for `objects[k]`, 0 for anything else). Solids are the particles'
+/// cubes (edge twice the radius, in their shape's frame; ropes' particles as cubes along the world
+/// axes) and the ground plane z = 0.
+pub fn observe_depth_and_labels(world: &World, cameras: &[Camera], objects: &[&str]) -> Vec<(Vec<f32>, Vec<u8>)> {
+    use rayon::prelude::*;
+    let p = &world.particles;
+    // Per shape: its frame, its cubes' centres and half edges in that frame, and a bounding sphere.
+    let shapes: Vec<(Pose, Vec<(Vec3, f32)>, Vec3, f32, u8)> = (0..world.shapes.len() as u32)
+        .map(|s| {
+            let frame = if world.shapes.kind[s as usize] == crate::world::ShapeKind::Rope { Pose::IDENTITY } else { world.shapes.pose[s as usize] };
+            let to_frame = frame.inverse();
+            let cubes: Vec<(Vec3, f32)> = world.shapes.range(s).map(|i| (to_frame.transform_point(p.position[i]), p.radius[i])).collect();
+            let centre = cubes.iter().map(|c| c.0).sum::<Vec3>() / cubes.len().max(1) as f32;
+            let reach = cubes.iter().map(|(c, r)| c.distance(centre) + r * 1.8).fold(0.0, f32::max);
+            let label = objects.iter().position(|o| *o == world.shapes.name[s as usize]).map_or(0, |k| k as u8 + 1);
+            (frame, cubes, frame.transform_point(centre), reach, label)
+        })
+        .collect();
+    cameras
+        .iter()
+        .map(|c| {
+            let to_world = c.world_to_camera.inverse();
+            let origin = to_world.translation;
+            let pixels: Vec<(f32, u8)> = (0..c.width * c.height)
+                .into_par_iter()
+                .map(|k| {
+                    let (u, v) = ((k % c.width) as f32 + 0.5, (k / c.width) as f32 + 0.5);
+                    // Unnormalised: the ray parameter is the depth along the optical axis.
+                    let dir = to_world.rotation * Vec3::new((u - c.cx) / c.fx, (v - c.cy) / c.fy, 1.0);
+                    let mut best = (if dir.z < 0.0 { -origin.z / dir.z } else { f32::INFINITY }, 0u8);
+                    for (frame, cubes, centre, reach, label) in &shapes {
+                        // Skip shapes whose bounding sphere the ray misses or lies behind the best hit.
+                        let along = (*centre - origin).dot(dir) / dir.length_squared();
+                        let closest = origin + dir * along;
+                        if closest.distance(*centre) > *reach || (along - reach / dir.length()) > best.0 {
+                            continue;
+                        }
+                        let inv = frame.rotation.inverse();
+                        let (o, d) = (inv * (origin - frame.translation), inv * dir);
+                        for (q, r) in cubes {
+                            if let Some(t) = ray_cube(o - *q, d, *r)
+                                && t < best.0
+                            {
+                                best = (t, *label);
+                            }
+                        }
+                    }
+                    if best.0.is_finite() { best } else { (0.0, 0) }
+                })
+                .collect();
+            (pixels.iter().map(|x| x.0).collect(), pixels.iter().map(|x| x.1).collect())
+        })
+        .collect()
+}
+
+/// Where a ray `o + t d` (t > 0) enters the cube `|x|_inf <= h` centred at the origin.
+fn ray_cube(o: Vec3, d: Vec3, h: f32) -> Option<f32> {
+    let inv = d.recip();
+    let (a, b) = ((Vec3::splat(-h) - o) * inv, (Vec3::splat(h) - o) * inv);
+    let (near, far) = (a.min(b).max_element(), a.max(b).min_element());
+    (near <= far && near > 0.0).then_some(near)
+}
+
 /// Mean distance (m) between the particles of `object` in the two worlds.
 pub fn tracking_error(truth: &World, model: &World, object: &str) -> Option<f32> {
     let (a, b) = (truth.shape_id(object)?, model.shape_id(object)?);

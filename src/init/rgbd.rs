@@ -1,0 +1,255 @@
+//! Objects from RGB-D and instance masks (the paper's dual Gaussian-particle initialisation, for
+//! rigid objects resting on the table): the ground plane by RANSAC on the depth points; per object,
+//! its masked depth points give an oriented bounding box standing on the ground; a lattice of
+//! particles fills the box; carving removes the cells a camera sees through (depth) or sees no
+//! object at (mask); one Gaussian per particle gets its colour from the images by Adam; Gaussians
+//! are bonded to their particles.
+
+use super::table::{ColourFit, FitFrame, fit_colours};
+use super::{BodyGaussian, ObjectModel};
+use crate::math::Pose;
+use crate::render::{Camera, GaussianCloud, GaussianParams, RenderSettings, logit};
+use anyhow::{Result, bail};
+use glam::{Quat, Vec2, Vec3, Vec4};
+use serde::Serialize;
+
+/// One camera's RGB-D frame with instance labels (0: no object).
+pub struct RgbdFrame<'a> {
+    pub camera: Camera,
+    pub colour: &'a [Vec3],
+    /// Metres along the optical axis; 0 or non-finite where there is no measurement.
+    pub depth: &'a [f32],
+    pub labels: &'a [u8],
+}
+
+impl RgbdFrame<'_> {
+    fn check(&self) -> Result<()> {
+        let n = (self.camera.width * self.camera.height) as usize;
+        if self.colour.len() != n || self.depth.len() != n || self.labels.len() != n {
+            bail!("RGB-D frame: colour, depth and labels must all have {n} pixels");
+        }
+        Ok(())
+    }
+
+    /// World point seen at pixel `k`, if it has a depth.
+    fn point(&self, k: usize) -> Option<Vec3> {
+        let d = self.depth[k];
+        if !(d.is_finite() && d > 0.0) {
+            return None;
+        }
+        let c = &self.camera;
+        let (u, v) = ((k as u32 % c.width) as f32 + 0.5, (k as u32 / c.width) as f32 + 0.5);
+        let p = Vec3::new((u - c.cx) / c.fx * d, (v - c.cy) / c.fy * d, d);
+        Some(c.world_to_camera.inverse().transform_point(p))
+    }
+}
+
+/// A plane `normal . p = height` fitted by RANSAC: the plane through three random points with the
+/// most points within `tolerance`, refined by least squares on its inliers.
+pub fn ground_ransac(points: &[Vec3], iterations: usize, tolerance: f32, seed: u64) -> Option<(Vec3, f32, usize)> {
+    if points.len() < 3 {
+        return None;
+    }
+    let mut state = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    let mut next = |n: usize| {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((state >> 33) as usize) % n
+    };
+    let mut best: Option<(Vec3, f32, usize)> = None;
+    for _ in 0..iterations {
+        let (a, b, c) = (points[next(points.len())], points[next(points.len())], points[next(points.len())]);
+        let Some(n) = (b - a).cross(c - a).try_normalize() else { continue };
+        let n = if n.z < 0.0 { -n } else { n };
+        let h = n.dot(a);
+        let count = points.iter().filter(|p| (n.dot(**p) - h).abs() < tolerance).count();
+        if best.is_none_or(|(_, _, k)| count > k) {
+            best = Some((n, h, count));
+        }
+    }
+    let (n, h, _) = best?;
+    // Least squares on the inliers: the normal is the direction of least spread.
+    let inliers: Vec<Vec3> = points.iter().copied().filter(|p| (n.dot(*p) - h).abs() < tolerance).collect();
+    let centre = inliers.iter().copied().sum::<Vec3>() / inliers.len() as f32;
+    let mut cov = glam::Mat3::ZERO;
+    for p in &inliers {
+        let d = *p - centre;
+        cov += glam::Mat3::from_cols(d * d.x, d * d.y, d * d.z);
+    }
+    let refined = smallest_eigenvector(cov, n);
+    let refined = if refined.dot(n) < 0.0 { -refined } else { refined };
+    Some((refined, refined.dot(centre), inliers.len()))
+}
+
+/// Eigenvector of the smallest eigenvalue of a symmetric positive semi-definite matrix, by inverse
+/// iteration from `guess`.
+fn smallest_eigenvector(m: glam::Mat3, guess: Vec3) -> Vec3 {
+    let shifted = m + glam::Mat3::from_diagonal(Vec3::splat(1e-9 + 1e-6 * m.x_axis.x.abs().max(m.y_axis.y.abs()).max(m.z_axis.z.abs())));
+    let inv = shifted.inverse();
+    let mut v = guess.normalize();
+    for _ in 0..20 {
+        v = (inv * v).try_normalize().unwrap_or(v);
+    }
+    v
+}
+
+/// How an object was found.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct RgbdObjectReport {
+    pub points: usize,
+    pub box_size: [f32; 3],
+    pub lattice_cells: usize,
+    pub carved: usize,
+    pub particles: usize,
+    pub colour_fit: ColourFit,
+    pub seconds: f64,
+}
+
+/// Build the object labelled `label` in `frames`: particles of `radius` filling what the cameras
+/// cannot see through inside its bounding box on the ground `normal . p = height`. `surface_inset`
+/// is how far below the true surface the depth measures it (0 for a depth camera; a Gaussian
+/// render's expected depth lies about one Gaussian deviation inside).
+pub fn object_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Vec3, f32), radius: f32, surface_inset: f32, render: &RenderSettings) -> Result<(ObjectModel, RgbdObjectReport)> {
+    let clock = std::time::Instant::now();
+    for f in frames {
+        f.check()?;
+    }
+    let (normal, height) = (ground.0.normalize(), ground.1);
+    // Masked depth points, away from the mask's edge (mixed depths at silhouettes).
+    let mut points: Vec<Vec3> = Vec::new();
+    for f in frames {
+        let (w, h) = (f.camera.width as usize, f.camera.height as usize);
+        for y in 1..h.saturating_sub(1) {
+            for x in 1..w.saturating_sub(1) {
+                let k = y * w + x;
+                let interior = [k, k - 1, k + 1, k - w, k + w].iter().all(|&j| f.labels[j] == label);
+                if interior && let Some(p) = f.point(k) {
+                    points.push(p);
+                }
+            }
+        }
+    }
+    if points.len() < 10 {
+        bail!("object '{name}' (label {label}): only {} depth points in its masks", points.len());
+    }
+    // Stray labels (a few pixels of something else) must not stretch the box: keep the points
+    // within the bulk of the heights.
+    let mut heights: Vec<f32> = points.iter().map(|p| normal.dot(*p) - height).collect();
+    heights.sort_by(f32::total_cmp);
+    let quantile = |v: &[f32], q: f32| v[((v.len() - 1) as f32 * q).round() as usize];
+    let (h_lo, h_hi) = (quantile(&heights, 0.005) - 2.0 * radius, quantile(&heights, 0.995) + 2.0 * radius);
+    points.retain(|p| (h_lo..=h_hi).contains(&(normal.dot(*p) - height)));
+    // Oriented box standing on the ground: the in-plane turn with the smallest rectangle.
+    let e1 = normal.any_orthonormal_vector();
+    let e2 = normal.cross(e1);
+    let flat: Vec<Vec2> = points.iter().map(|p| Vec2::new(p.dot(e1), p.dot(e2))).collect();
+    // The rectangle of the points along each rotated axis.
+    let rect = |angle: f32| {
+        let (s, c) = angle.sin_cos();
+        let u: Vec<f32> = flat.iter().map(|q| c * q.x + s * q.y).collect();
+        let v: Vec<f32> = flat.iter().map(|q| -s * q.x + c * q.y).collect();
+        let u = [u.iter().copied().fold(f32::INFINITY, f32::min), u.iter().copied().fold(f32::NEG_INFINITY, f32::max)];
+        let v = [v.iter().copied().fold(f32::INFINITY, f32::min), v.iter().copied().fold(f32::NEG_INFINITY, f32::max)];
+        (Vec2::new(u[0], v[0]), Vec2::new(u[u.len() - 1], v[v.len() - 1]))
+    };
+    let angle = (0..180).map(|k| (k as f32 * 0.5).to_radians()).min_by(|a, b| {
+        let area = |x: f32| {
+            let (lo, hi) = rect(x);
+            (hi - lo).x * (hi - lo).y
+        };
+        area(*a).total_cmp(&area(*b))
+    });
+    let angle = angle.unwrap_or(0.0);
+    let (lo, hi) = rect(angle);
+    let (lo, hi) = (lo - Vec2::splat(surface_inset), hi + Vec2::splat(surface_inset));
+    let top = quantile(&heights, 0.995) + surface_inset;
+    let size = Vec3::new(hi.x - lo.x, hi.y - lo.y, top);
+    let (s, c) = angle.sin_cos();
+    // Body axes: x, y along the rectangle, z along the ground normal; origin at the box centre.
+    let ax = e1 * c + e2 * s;
+    let ay = normal.cross(ax);
+    let mid = (lo + hi) / 2.0;
+    let centre_flat = ax * mid.x + ay * mid.y;
+    let centre = centre_flat - normal * normal.dot(centre_flat) + normal * (height + top / 2.0);
+    let rotation = Quat::from_mat3(&glam::Mat3::from_cols(ax, ay, normal)).normalize();
+    let pose = Pose::new(centre, rotation);
+    // Lattice of touching particles (spacing 2 x radius): as many as fit the measured size,
+    // centred in the plane and stacked from the ground up.
+    let cells = |extent: f32| ((extent / (2.0 * radius)).round() as usize).max(1);
+    let (nx, ny, nz) = (cells(size.x), cells(size.y), cells(size.z));
+    let step = 2.0 * radius;
+    let mut lattice = Vec::with_capacity(nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let x = (i as f32 - (nx - 1) as f32 / 2.0) * step;
+                let y = (j as f32 - (ny - 1) as f32 / 2.0) * step;
+                lattice.push(Vec3::new(x, y, radius + k as f32 * step - size.z / 2.0));
+            }
+        }
+    }
+    // Carving: a cell is empty if some camera sees past it (a surface further away at its pixel,
+    // the object's own far side included), or sees no depth there and not the object (mask).
+    let tolerance = 0.5 * step;
+    let kept: Vec<Vec3> = lattice
+        .iter()
+        .copied()
+        .filter(|b| {
+            let p = pose.transform_point(*b);
+            !frames.iter().any(|f| {
+                let (u, v, z) = f.camera.project(p);
+                if !(z > 0.0 && u >= 0.0 && v >= 0.0 && u < f.camera.width as f32 && v < f.camera.height as f32) {
+                    return false;
+                }
+                let k = (v as u32 * f.camera.width + u as u32) as usize;
+                let d = f.depth[k];
+                if d.is_finite() && d > 0.0 { d > z + tolerance } else { f.labels[k] != label }
+            })
+        })
+        .collect();
+    if kept.is_empty() {
+        bail!("object '{name}': every cell of its bounding box was carved away");
+    }
+    // One Gaussian per particle, coloured from the images inside the object's masks.
+    let mut cloud = GaussianCloud::default();
+    let mean_colour = {
+        let (sum, n) = frames.iter().flat_map(|f| f.colour.iter().zip(f.labels)).filter(|(_, l)| **l == label).fold((Vec3::ZERO, 0usize), |(s, n), (c, _)| (s + *c, n + 1));
+        sum / n.max(1) as f32
+    };
+    let sigma = 0.6 * radius;
+    for b in &kept {
+        let q = rotation;
+        cloud.push(GaussianParams { mean: pose.transform_point(*b), rotation: Vec4::new(q.x, q.y, q.z, q.w), log_scale: Vec3::splat(sigma.ln()), opacity_logit: logit(0.95), colour: mean_colour });
+    }
+    let fit_frames: Vec<FitFrame> = frames.iter().map(|f| FitFrame { camera: f.camera, image: f.colour, ignore: f.labels.iter().map(|l| *l != label).collect() }).collect();
+    let colour_fit = fit_colours(&mut cloud, &fit_frames, 60, 0.05, 1.0, &RenderSettings { background: Vec3::ZERO, ..render.clone() }, false)?;
+    let gaussians = kept.iter().zip(&cloud.colour).map(|(b, c)| BodyGaussian { mean: *b, rotation: Quat::IDENTITY, scale: Vec3::splat(sigma), opacity: 0.95, colour: *c }).collect();
+    let report = RgbdObjectReport {
+        points: points.len(),
+        box_size: size.to_array(),
+        lattice_cells: lattice.len(),
+        carved: lattice.len() - kept.len(),
+        particles: kept.len(),
+        colour_fit,
+        seconds: clock.elapsed().as_secs_f64(),
+    };
+    let particles = kept.iter().map(|b| (*b, radius)).collect();
+    Ok((ObjectModel { name: name.to_string(), pose, particles, gaussians }, report))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ransac_finds_a_tilted_plane_among_outliers() {
+        let n = Vec3::new(0.01, -0.02, 1.0).normalize();
+        let e1 = n.any_orthonormal_vector();
+        let e2 = n.cross(e1);
+        let mut points: Vec<Vec3> = (0..400).map(|k| n * 0.03 + e1 * ((k % 20) as f32 * 0.05 - 0.5) + e2 * ((k / 20) as f32 * 0.05 - 0.5)).collect();
+        // A box's worth of points above it.
+        points.extend((0..150).map(|k| Vec3::new(0.1 + (k % 10) as f32 * 0.01, (k / 10) as f32 * 0.01, 0.08)));
+        let (normal, height, inliers) = ground_ransac(&points, 200, 0.003, 7).unwrap();
+        assert!(normal.angle_between(n) < 1e-3, "{normal} vs {n}");
+        assert!((height - 0.03).abs() < 1e-4 && inliers == 400, "{height} {inliers}");
+    }
+}
