@@ -32,8 +32,31 @@ pub struct SceneConfig {
     pub offset_yaw: f32,
     /// Objects loaded from files.
     pub objects: Vec<ObjectConfig>,
+    /// Objects built from the first frames' depth and instance masks (`/<camera>/depth/image_raw`,
+    /// `/<camera>/mask/image_raw`).
+    pub rgbd_objects: Vec<RgbdObjectConfig>,
+    /// Fit the ground plane to the first depth frames (RANSAC) instead of `physics.ground`.
+    pub ground_from_depth: bool,
     /// The table as thin-disk Gaussians on the ground plane, fitted to the first frames.
     pub table: Option<TableConfig>,
+}
+
+/// An object found in the first RGB-D frames by its instance-mask label.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RgbdObjectConfig {
+    pub name: String,
+    /// Its value in the mask images (1..=255).
+    pub label: u8,
+    /// Total mass, kg.
+    pub mass: f32,
+    pub particle_radius: f32,
+}
+
+impl Default for RgbdObjectConfig {
+    fn default() -> Self {
+        Self { name: String::new(), label: 1, mass: 0.2, particle_radius: 0.005 }
+    }
 }
 
 /// One tracked object loaded from a file.

@@ -303,7 +303,7 @@ fn main() -> Result<()> {
             }
             for (object, cams) in &m.silhouette_iou {
                 for (camera, s) in cams {
-                    println!("  {object} in {camera}: silhouette IoU mean {:.3}, p5 {:.3} over {} frames", s.mean, s.p5, s.frames);
+                    println!("  {object} in {camera}: silhouette IoU mean {:.3}, p5 {:.3}; visible part {:.3}, p5 {:.3}; over {} frames", s.mean, s.p5, s.visible_mean, s.visible_p5, s.frames);
                 }
             }
             for (object, c) in &m.comparison {

@@ -1,15 +1,16 @@
 #!/usr/bin/env bash
 # Set up and run every pegs test on a fresh machine (Rust toolchain, Python 3 and git assumed).
-# Installs Mesa's lavapipe so the wgpu renderer runs on the CPU. Physics and rendering tests run in
+# Installs Mesa's lavapipe so the wgpu renderer runs on the CPU, and the ffmpeg tool that decodes
+# the real recording's videos (../shared/data/pusht_real). Physics and rendering tests run in
 # release mode: they simulate seconds of motion and render real images.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-if ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1; then
+if ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 || ! command -v ffmpeg >/dev/null; then
   SUDO=""
   if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
   $SUDO apt-get update -qq
-  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null
+  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends mesa-vulkan-drivers libvulkan1 ffmpeg >/dev/null
 fi
 # Mesa wants a private runtime directory; without one it prints a harmless error on every start.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"

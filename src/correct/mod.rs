@@ -46,8 +46,9 @@ pub struct CorrectConfig {
     pub use_roi: bool,
     pub roi_margin_px: f32,
     /// Unmodelled occluders (an arm without joint states, a hand): a pixel whose colour is further
-    /// than this (RGB distance, colours in [0, 1]) from both the static scene rendered there and
-    /// every colour of the tracked objects is left out of the loss. 0 uses every pixel.
+    /// than this (RGB distance, colours in [0, 1]) from the static scene rendered there, and whose
+    /// chromaticity is this far from every colour the tracked objects render with (brightness free
+    /// within a factor 2.5: shading), is left out of the loss. 0 uses every pixel.
     pub occluder_threshold: f32,
 }
 
@@ -181,22 +182,9 @@ impl Corrector {
                 let rendered = self.renderer.forward(&objects, &v.camera, *w)?;
                 let palette = palette(rendered.colour.iter().zip(&rendered.alpha).filter(|(_, a)| **a > 0.5).map(|(c, a)| *c / *a), 0.01);
                 let background = crop(self.background(world, &v.camera)?, v.camera.width, *w);
-                let explained = |o: Vec3, b: Vec3| same_surface(o, b, threshold) || palette.iter().any(|c| same_surface(o, *c, threshold));
+                let explained = |o: Vec3, b: Vec3| o.distance(b) <= threshold || palette.iter().any(|c| same_surface(o, *c, threshold));
                 let wv: Vec<f32> = target.iter().zip(&background).map(|(o, b)| if explained(*o, *b) { 1.0 } else { 0.0 }).collect();
                 stats.occluded_pixels += wv.iter().filter(|x| **x == 0.0).count();
-                if let Ok(dir) = std::env::var("PEGS_DEBUG_OCCLUDER") {
-                    static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-                    let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    if n < 6 {
-                        let mut img = image::RgbImage::new(w.width() * 3, w.height());
-                        for y in 0..w.height() { for x in 0..w.width() { let k = (y * w.width() + x) as usize;
-                            let f = |c: Vec3| { let c = (c.clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round(); image::Rgb([c.x as u8, c.y as u8, c.z as u8]) };
-                            img.put_pixel(x, y, f(target[k])); img.put_pixel(x + w.width(), y, f(background[k])); img.put_pixel(x + 2 * w.width(), y, f(Vec3::splat(wv[k])));
-                        }}
-                        let _ = img.save(format!("{dir}/occ{n}.png"));
-                        eprintln!("palette {n}: {palette:?}");
-                    }
-                }
                 weights.push(wv);
             }
             weights
@@ -316,7 +304,7 @@ impl Corrector {
 /// Whether `observed` can be the surface of colour `model` under other light: its brightness
 /// within a factor of 2.5 of the model's (or both dark) and its chromaticity within `threshold`
 /// (the distance of `observed` from the line through `model`).
-fn same_surface(observed: Vec3, model: Vec3, threshold: f32) -> bool {
+pub fn same_surface(observed: Vec3, model: Vec3, threshold: f32) -> bool {
     const DARK: f32 = 0.15;
     let (lo, lm) = (observed.length(), model.length());
     if lo < DARK && lm < DARK {
@@ -329,7 +317,7 @@ fn same_surface(observed: Vec3, model: Vec3, threshold: f32) -> bool {
 }
 
 /// The colours of a set (quantised to 1/20) that make up at least `min_share` of it.
-fn palette(colours: impl Iterator<Item = Vec3>, min_share: f32) -> Vec<Vec3> {
+pub fn palette(colours: impl Iterator<Item = Vec3>, min_share: f32) -> Vec<Vec3> {
     let mut bins: std::collections::BTreeMap<[i32; 3], (Vec3, usize)> = std::collections::BTreeMap::new();
     let mut total = 0usize;
     for c in colours {

@@ -351,8 +351,13 @@ pub fn import_config(dir: &Path) -> Result<Config> {
         config.scene.table = Some(TableConfig { min: lo, max: hi, ..Default::default() });
     }
     // The arm is not modelled (no joint trajectory in the source): pixels that neither the
-    // objects nor the table explain are occluders, left out of the photometric loss.
+    // objects nor the table explain are occluders, left out of the photometric loss. Its pushes
+    // reach the block only through visual forces, which real images make noisy: a strongly damped
+    // model with smaller Adam steps follows them without being thrown about (first 3 s, silhouette
+    // IoU per camera 0.69 / 0.68 / 0.45 with the defaults, 0.71 / 0.77 / 0.49 with these).
     config.correct.occluder_threshold = 0.35;
+    config.physics.damping = 0.5;
+    config.correct.lr_mean = 0.0007;
     Ok(config)
 }
 

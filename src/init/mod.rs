@@ -49,6 +49,9 @@ pub struct FirstFrames<'a> {
     pub camera: Camera,
     /// Linear RGB images, oldest first; the first one is the start of tracking.
     pub images: Vec<&'a [Vec3]>,
+    /// Depth (m, 0 unknown) and instance labels aligned with the first image, if recorded.
+    pub depth: Option<&'a [f32]>,
+    pub labels: Option<&'a [u8]>,
 }
 
 #[derive(Clone, Debug, Default, Serialize)]
@@ -63,7 +66,10 @@ pub struct ObjectInit {
 /// What initialisation did and how long it took.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct InitReport {
+    /// The ground plane fitted to the depth (unit normal, height along it), if asked for.
+    pub ground: Option<(Vec3, f32)>,
     pub objects: BTreeMap<String, ObjectInit>,
+    pub rgbd_objects: BTreeMap<String, rgbd::RgbdObjectReport>,
     pub table: Option<table::ColourFit>,
     pub seconds: f64,
 }
@@ -87,16 +93,67 @@ pub fn dilate(mask: &[bool], width: u32, height: u32, radius: i32) -> Vec<bool> 
     out
 }
 
+/// Move `shape` along the ground normal so that its lowest particle just touches the ground
+/// `normal . p = height` (up out of it, or down onto it when it floats); returns the move in m.
+pub fn settle_on_ground(world: &mut crate::world::World, shape: crate::world::ShapeId, normal: Vec3, height: f32) -> f32 {
+    let n = normal.normalize_or(Vec3::Z);
+    let gap = world.shapes.range(shape).map(|i| n.dot(world.particles.position[i]) - height - world.particles.radius[i]).fold(f32::INFINITY, f32::min);
+    if !gap.is_finite() {
+        return 0.0;
+    }
+    world.move_shape(shape, Pose::from_translation(-gap * n));
+    -gap
+}
+
 /// Build the world of `config.scene.objects` and `config.scene.table` from the first frames:
 /// load the objects, align each object that has a colour mask to it, then fit the table to the
 /// frames with the objects' pixels left out.
-pub fn build_scene(config: &Config, frames: &[FirstFrames], progress: bool) -> Result<(Scene, InitReport)> {
+pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(String, f64)], progress: bool) -> Result<(Scene, InitReport)> {
     let clock = std::time::Instant::now();
-    if config.scene.objects.is_empty() {
-        bail!("the configuration names no scene.scenario and no scene.objects: nothing to track");
+    if config.scene.objects.is_empty() && config.scene.rgbd_objects.is_empty() {
+        bail!("the configuration names no scene.scenario, scene.objects or scene.rgbd_objects: nothing to track");
     }
     let mut report = InitReport::default();
     let mut builder = WorldBuilder::new();
+    let rgbd: Vec<rgbd::RgbdFrame> = frames
+        .iter()
+        .filter_map(|f| Some(rgbd::RgbdFrame { camera: f.camera, colour: f.images.first()?, depth: f.depth?, labels: f.labels? }))
+        .collect();
+    let mut ground = (config.physics.ground.normal.normalize_or(Vec3::Z), config.physics.ground.height);
+    if config.scene.ground_from_depth {
+        let points: Vec<Vec3> = rgbd.iter().flat_map(|f| (0..f.depth.len()).step_by(3).filter(|&k| f.labels[k] == 0).filter_map(|k| f.point(k))).collect();
+        let (normal, height, inliers) = rgbd::ground_ransac(&points, 300, 0.003, 1).context("no depth to fit the ground plane to")?;
+        if inliers < 100 {
+            bail!("the ground plane fitted to the depth has only {inliers} points");
+        }
+        ground = (normal, height);
+        report.ground = Some(ground);
+    }
+    for object in &config.scene.rgbd_objects {
+        if rgbd.is_empty() {
+            bail!("object '{}' is to be built from depth and masks, but the recording has none", object.name);
+        }
+        let (model, r) = rgbd::object_from_rgbd(&object.name, object.label, &rgbd, ground, object.particle_radius, 0.0, &config.render).with_context(|| format!("object '{}'", object.name))?;
+        builder.add_rigid_model(&object.name, &model, object.mass / model.particles.len() as f32);
+        report.objects.insert(object.name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None, colour_fit: Some(r.colour_fit.clone()) });
+        report.rgbd_objects.insert(object.name.clone(), r);
+    }
+    // The robot, at its first recorded joint positions (the replay drives it from then on).
+    let robot = match &config.robot.urdf {
+        Some(path) => {
+            let model = crate::robot::RobotModel::load(path, &crate::robot::PackagePaths(config.robot.package_paths.clone()), config.robot.geometry)?;
+            let mut q = vec![0.0; model.joints.len()];
+            for (name, v) in initial_joints {
+                if let Some(j) = model.joint_index(name)
+                    && v.is_finite()
+                {
+                    q[j] = *v;
+                }
+            }
+            Some((crate::robot::RobotInWorld::add(&mut builder, model, &q, &config.robot)?, crate::robot::JointTrajectory::default()))
+        }
+        None => None,
+    };
     let mut shapes = Vec::new();
     for object in &config.scene.objects {
         if object.name.is_empty() {
@@ -112,6 +169,11 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], progress: bool) -> R
         shapes.push((s, name, object));
     }
     let mut world = builder.build();
+    let config = &{
+        let mut c = config.clone();
+        (c.physics.ground.normal, c.physics.ground.height) = ground;
+        c
+    };
     let first: Vec<(&FirstFrames, &[Vec3])> = frames.iter().filter_map(|f| f.images.first().map(|i| (f, *i))).collect();
     // Pixels of every object in every camera's frames, left out of the table fit.
     let mut object_pixels: Vec<Vec<Vec<bool>>> = frames.iter().map(|f| f.images.iter().map(|_| vec![false; (f.camera.width * f.camera.height) as usize]).collect()).collect();
@@ -152,6 +214,13 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], progress: bool) -> R
             }
         }
     }
+    // Objects start resting on the ground, not in it: the physics would turn a penetration into
+    // a jump (a 2 mm overlap resolved in one substep is a 1 m/s kick).
+    if config.physics.ground.enabled {
+        for s in world.shapes.dynamic_ids().collect::<Vec<_>>() {
+            settle_on_ground(&mut world, s, config.physics.ground.normal, config.physics.ground.height);
+        }
+    }
     if let Some(table_config) = &config.scene.table {
         // Objects without a mask: leave out where they render now (after alignment).
         let cloud = crate::render::GaussianCloud::from_world(&world);
@@ -182,5 +251,5 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], progress: bool) -> R
         report.table = Some(fit);
     }
     report.seconds = clock.elapsed().as_secs_f64();
-    Ok((Scene { world, scripts: Vec::new(), robot: None }, report))
+    Ok((Scene { world, scripts: Vec::new(), robot }, report))
 }

@@ -32,7 +32,7 @@ impl RgbdFrame<'_> {
     }
 
     /// World point seen at pixel `k`, if it has a depth.
-    fn point(&self, k: usize) -> Option<Vec3> {
+    pub fn point(&self, k: usize) -> Option<Vec3> {
         let d = self.depth[k];
         if !(d.is_finite() && d > 0.0) {
             return None;

@@ -17,6 +17,14 @@ pub fn image_topic(camera: &str) -> String {
 pub fn info_topic(camera: &str) -> String {
     format!("/{camera}/color/camera_info")
 }
+/// Depth aligned to the colour image (32FC1, metres; 0 where unknown).
+pub fn depth_topic(camera: &str) -> String {
+    format!("/{camera}/depth/image_raw")
+}
+/// Instance labels aligned to the colour image (mono8; 0 is no object).
+pub fn mask_topic(camera: &str) -> String {
+    format!("/{camera}/mask/image_raw")
+}
 pub fn optical_frame(camera: &str) -> String {
     format!("{camera}_color_optical_frame")
 }
@@ -48,6 +56,16 @@ pub fn camera_info(c: &Camera, t: f64, frame: &str) -> CameraInfo {
 /// An rgb8 image message from packed RGB bytes.
 pub fn rgb8(width: u32, height: u32, data: Vec<u8>, t: f64, frame: &str) -> Image {
     Image { header: header(t, frame), height, width, encoding: "rgb8".into(), is_bigendian: 0, step: 3 * width, data }
+}
+
+/// A 32FC1 depth image message (metres, little-endian).
+pub fn depth32(width: u32, height: u32, depth: &[f32], t: f64, frame: &str) -> Image {
+    Image { header: header(t, frame), height, width, encoding: "32FC1".into(), is_bigendian: 0, step: 4 * width, data: depth.iter().flat_map(|d| d.to_le_bytes()).collect() }
+}
+
+/// A mono8 image message.
+pub fn mono8(width: u32, height: u32, data: Vec<u8>, t: f64, frame: &str) -> Image {
+    Image { header: header(t, frame), height, width, encoding: "mono8".into(), is_bigendian: 0, step: width, data }
 }
 
 /// `/tf_static` content: every named camera's optical frame in the world frame.

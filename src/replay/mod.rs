@@ -108,6 +108,9 @@ struct Streams {
     cameras: Vec<(String, Camera)>,
     /// Per camera: (stamp, image) in time order.
     images: Vec<Vec<(f64, Image)>>,
+    /// Per camera: the first depth and instance-mask images, if recorded.
+    depth: Vec<Option<Image>>,
+    masks: Vec<Option<Image>>,
     joint_states: Vec<(f64, JointState)>,
 }
 
@@ -119,6 +122,8 @@ fn parse(messages: Vec<RawMessage>, warnings: &mut Vec<String>) -> Result<Stream
     let mut infos: BTreeMap<String, CameraInfo> = BTreeMap::new();
     let mut poses: BTreeMap<String, Pose> = BTreeMap::new();
     let mut images: BTreeMap<String, Vec<(f64, Image)>> = BTreeMap::new();
+    let mut depth: BTreeMap<String, Image> = BTreeMap::new();
+    let mut masks: BTreeMap<String, Image> = BTreeMap::new();
     let mut joint_states = Vec::new();
     for m in messages {
         let decoded: Result<()> = (|| {
@@ -128,6 +133,10 @@ fn parse(messages: Vec<RawMessage>, warnings: &mut Vec<String>) -> Result<Stream
             } else if let Some(cam) = camera_of(&m.topic, "/color/image_raw") {
                 let img: Image = msgs::from_cdr(&m.data)?;
                 images.entry(cam).or_default().push((img.header.stamp.seconds(), img));
+            } else if let Some(cam) = camera_of(&m.topic, "/depth/image_raw") {
+                depth.entry(cam).or_insert(msgs::from_cdr(&m.data)?);
+            } else if let Some(cam) = camera_of(&m.topic, "/mask/image_raw") {
+                masks.entry(cam).or_insert(msgs::from_cdr(&m.data)?);
             } else if m.topic == record::JOINT_STATES {
                 let js: JointState = msgs::from_cdr(&m.data)?;
                 joint_states.push((js.header.stamp.seconds(), js));
@@ -151,6 +160,7 @@ fn parse(messages: Vec<RawMessage>, warnings: &mut Vec<String>) -> Result<Stream
     }
     let mut cameras = Vec::new();
     let mut streams = Vec::new();
+    let (mut depth_streams, mut mask_streams) = (Vec::new(), Vec::new());
     for (name, mut imgs) in images {
         let Some(info) = infos.get(&name) else {
             warnings.push(format!("camera {name}: images but no CameraInfo; camera ignored"));
@@ -166,11 +176,13 @@ fn parse(messages: Vec<RawMessage>, warnings: &mut Vec<String>) -> Result<Stream
             continue;
         }
         imgs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        depth_streams.push(depth.remove(&name));
+        mask_streams.push(masks.remove(&name));
         cameras.push((name, Camera::from_opencv(info.width, info.height, k[0] as f32, k[4] as f32, k[2] as f32, k[5] as f32, *pose)));
         streams.push(imgs);
     }
     joint_states.sort_by(|a, b| a.0.total_cmp(&b.0));
-    Ok(Streams { cameras, images: streams, joint_states })
+    Ok(Streams { cameras, images: streams, depth: depth_streams, masks: mask_streams, joint_states })
 }
 
 /// Linear RGB in [0, 1] from an rgb8 or bgr8 image of the camera's size (BGR converted here, at
@@ -198,6 +210,33 @@ pub fn decode_image(img: &Image, camera: &Camera) -> std::result::Result<Vec<Vec
         }
     }
     Ok(out)
+}
+
+/// Metres from a 32FC1 depth image of the camera's size (non-finite or negative values become 0,
+/// unknown).
+pub fn decode_depth(img: &Image, camera: &Camera) -> std::result::Result<Vec<f32>, String> {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    if img.width != camera.width || img.height != camera.height || img.encoding != "32FC1" || img.is_bigendian != 0 || (img.step as usize) < 4 * w || img.data.len() < img.step as usize * h {
+        return Err(format!("depth must be little-endian 32FC1 of {w}x{h}, got {} {}x{}", img.encoding, img.width, img.height));
+    }
+    let mut out = Vec::with_capacity(w * h);
+    for y in 0..h {
+        for x in 0..w {
+            let at = y * img.step as usize + 4 * x;
+            let d = f32::from_le_bytes([img.data[at], img.data[at + 1], img.data[at + 2], img.data[at + 3]]);
+            out.push(if d.is_finite() && d > 0.0 { d } else { 0.0 });
+        }
+    }
+    Ok(out)
+}
+
+/// Labels from a mono8 instance-mask image of the camera's size.
+pub fn decode_labels(img: &Image, camera: &Camera) -> std::result::Result<Vec<u8>, String> {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    if img.width != camera.width || img.height != camera.height || img.encoding != "mono8" || (img.step as usize) < w || img.data.len() < img.step as usize * h {
+        return Err(format!("instance masks must be mono8 of {w}x{h}, got {} {}x{}", img.encoding, img.width, img.height));
+    }
+    Ok((0..h).flat_map(|y| img.data[y * img.step as usize..y * img.step as usize + w].iter().copied()).collect())
 }
 
 /// Ground-truth poses per object: time-ordered `(t, pose)`.
@@ -273,6 +312,7 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     }
     metrics.cameras = streams.cameras.iter().map(|c| c.0.clone()).collect();
     let scene_config = &config.scene;
+    let mut ground_from_depth = None;
     let mut scene = match scene_config.scenario.as_deref() {
         Some(name) => scenario::build(name, Pose::new(scene_config.offset_position, Quat::from_rotation_z(scene_config.offset_yaw)))?,
         None => {
@@ -293,16 +333,27 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
                     picked.into_iter().map(|i| usable[i].1.clone()).collect()
                 })
                 .collect();
+            let mut depths = Vec::new();
+            let mut labels = Vec::new();
+            for (c, (name, cam)) in streams.cameras.iter().enumerate() {
+                depths.push(streams.depth[c].as_ref().and_then(|i| decode_depth(i, cam).map_err(|why| metrics.warnings.push(format!("camera {name}: depth not used: {why}"))).ok()));
+                labels.push(streams.masks[c].as_ref().and_then(|i| decode_labels(i, cam).map_err(|why| metrics.warnings.push(format!("camera {name}: masks not used: {why}"))).ok()));
+            }
             let frames: Vec<FirstFrames> = streams
                 .cameras
                 .iter()
                 .zip(&decoded)
-                .map(|((name, cam), imgs)| FirstFrames { name: name.clone(), camera: *cam, images: imgs.iter().map(|i| i.as_slice()).collect() })
+                .zip(depths.iter().zip(&labels))
+                .map(|(((name, cam), imgs), (d, l))| FirstFrames { name: name.clone(), camera: *cam, images: imgs.iter().map(|i| i.as_slice()).collect(), depth: d.as_deref(), labels: l.as_deref() })
                 .collect();
+            let initial_joints: Vec<(String, f64)> = streams.joint_states.first().map(|(_, js)| js.name.iter().cloned().zip(js.position.iter().copied()).collect()).unwrap_or_default();
             if opts.progress {
                 eprintln!("initialising the scene from the first frames of {} cameras", frames.len());
             }
-            let (scene, report) = init::build_scene(config, &frames, opts.progress)?;
+            let (scene, report) = init::build_scene(config, &frames, &initial_joints, opts.progress)?;
+            if let Some((normal, height)) = report.ground {
+                ground_from_depth = Some((normal, height));
+            }
             for (name, o) in &report.objects {
                 if let Some(a) = &o.alignment {
                     eprintln!("{name}: aligned to its masks, moved {:.1} mm, turned {:.1} deg, silhouette IoU {:.2} -> {:.2} ({:.1} s)", a.moved_mm, a.turned_deg, a.iou_before, a.iou_after, a.seconds);
@@ -332,6 +383,10 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         }
     }
     let mut config = config.clone();
+    if let Some((normal, height)) = ground_from_depth {
+        config.physics.ground.normal = normal;
+        config.physics.ground.height = height;
+    }
     metrics.mode = match (opts.physics, opts.visual_forces) {
         (true, true) => "physics + visual forces",
         (true, false) => "physics only",
@@ -353,7 +408,11 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
             .scene
             .objects
             .iter()
-            .filter_map(|o| Some(SilhouetteMeter::new(tracker.scene.world.shape_id(&o.name)?, &o.name, o.mask?, streams.cameras.len(), &config.render)))
+            .filter_map(|o| {
+                // The occluder test of the correction; its usual value where the correction does not use it.
+                let threshold = if config.correct.occluder_threshold > 0.0 { config.correct.occluder_threshold } else { 0.35 };
+                Some(SilhouetteMeter::new(tracker.scene.world.shape_id(&o.name)?, &o.name, o.mask?, streams.cameras.len(), &config.render, threshold))
+            })
             .collect()
     } else {
         Vec::new()
@@ -368,6 +427,18 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         let path = recording.with_file_name("ground_truth_particles.csv");
         if path.is_file() { read_ground_truth_particles(&path)? } else { ParticleTruth::new() }
     };
+    // Objects built from RGB-D have a body frame of their own: their error is measured after
+    // registering it to the true body frame at the start (so it is the drift of the tracking).
+    let mut registration: BTreeMap<String, Pose> = BTreeMap::new();
+    if let (Some(truth), Some(report)) = (&truth, &metrics.init) {
+        for name in report.rgbd_objects.keys() {
+            if let (Some(track), Some(s)) = (truth.get(name), tracker.scene.world.shape_id(name))
+                && let Some((_, first)) = track.first()
+            {
+                registration.insert(name.clone(), first.inverse().mul(&tracker.scene.world.shapes.pose[s as usize]));
+            }
+        }
+    }
     let mut writer = TrajectoryWriter::create(&out.join("objects.csv"))?;
     writer.record(&tracker.scene.world)?;
     let mut errors: BTreeMap<String, Vec<(f64, f32)>> = BTreeMap::new();
@@ -413,7 +484,6 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
             }
         }
         if let Some(s) = tracker.tick(&views)? {
-            if std::env::var("PEGS_DEBUG_FORCE").is_ok() && k % 5 == 0 { eprintln!("force {t:.2} {:?} occluded {}", s.force.first(), s.occluded_pixels); }
             loss_sum += s.loss_before;
         }
         // Silhouettes of the corrected state against the images it was corrected with.
@@ -451,7 +521,10 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
                 }
                 let Some(track) = truth.get(name) else { continue };
                 let i = track.partition_point(|(ts, _)| *ts < t - 1e-6).min(track.len() - 1);
-                let pose = track[i].1;
+                let pose = match registration.get(name) {
+                    Some(x) => track[i].1.mul(x),
+                    None => track[i].1,
+                };
                 let n = range.len() as f32;
                 let e = range.map(|p| pose.transform_point(w.particles.rest[p]).distance(w.particles.position[p])).sum::<f32>() / n;
                 errors.entry(name.clone()).or_default().push((t, e));
@@ -477,14 +550,14 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     }
     metrics.error_series = errors;
     if !meters.is_empty() {
-        let mut csv = String::from("t,object,camera,iou\n");
+        let mut csv = String::from("t,object,camera,iou,visible_iou\n");
         for meter in &meters {
             let per_camera = metrics.silhouette_iou.entry(meter.object.clone()).or_default();
             for (c, series) in meter.series.iter().enumerate() {
                 let camera = &streams.cameras[c].0;
-                per_camera.insert(camera.clone(), silhouette::iou_stats(&series.iter().map(|s| s.1).collect::<Vec<_>>()));
-                for (t, v) in series {
-                    csv += &format!("{t:.6},{},{camera},{v:.4}\n", meter.object);
+                per_camera.insert(camera.clone(), silhouette::iou_stats(&series.iter().map(|s| s.1).collect::<Vec<_>>(), &series.iter().map(|s| s.2).collect::<Vec<_>>()));
+                for (t, v, visible) in series {
+                    csv += &format!("{t:.6},{},{camera},{v:.4},{visible:.4}\n", meter.object);
                 }
             }
         }

@@ -3,30 +3,42 @@
 
 use crate::init::ColourMask;
 use crate::render::cpu::CpuRenderer;
-use crate::render::{Camera, GaussianCloud, RenderSettings, footprint_roi};
+use crate::correct::same_surface;
+use crate::render::{Camera, GaussianCloud, RenderSettings, Roi, footprint_roi};
 use crate::world::{ShapeId, World};
 use anyhow::{Context, Result};
 use glam::Vec3;
 use serde::Serialize;
 
+/// IoU statistics over the frames: of the whole silhouette (`mean`, `p5`), and of its visible
+/// part (`visible_mean`, `visible_p5`: pixels where something the model does not have, such as an
+/// unmodelled arm, stands in front are left out of both masks).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct IouStats {
     pub mean: f32,
     pub p5: f32,
+    pub visible_mean: f32,
+    pub visible_p5: f32,
     pub frames: usize,
 }
 
-pub fn iou_stats(values: &[f32]) -> IouStats {
+fn mean_p5(values: &[f32]) -> (f32, f32) {
     if values.is_empty() {
-        return IouStats::default();
+        return (0.0, 0.0);
     }
     let mut sorted = values.to_vec();
     sorted.sort_by(f32::total_cmp);
-    IouStats { mean: values.iter().sum::<f32>() / values.len() as f32, p5: sorted[(values.len() as f32 * 0.05).floor() as usize], frames: values.len() }
+    (values.iter().sum::<f32>() / values.len() as f32, sorted[(values.len() as f32 * 0.05).floor() as usize])
 }
 
-/// The object's silhouette (rendered alpha > 0.5) as a full-frame mask.
-pub fn silhouette(renderer: &mut CpuRenderer, world: &World, shape: ShapeId, camera: &Camera) -> Vec<bool> {
+pub fn iou_stats(whole: &[f32], visible: &[f32]) -> IouStats {
+    let ((mean, p5), (visible_mean, visible_p5)) = (mean_p5(whole), mean_p5(visible));
+    IouStats { mean, p5, visible_mean, visible_p5, frames: whole.len() }
+}
+
+/// The object's silhouette (rendered alpha > 0.5) as a full-frame mask, and the colours it renders
+/// with (see `correct::palette`).
+pub fn silhouette(renderer: &mut CpuRenderer, world: &World, shape: ShapeId, camera: &Camera) -> (Vec<bool>, Vec<Vec3>) {
     let full = GaussianCloud::from_world(world);
     let mut cloud = GaussianCloud::default();
     for i in world.gaussians_of(shape) {
@@ -36,16 +48,17 @@ pub fn silhouette(renderer: &mut CpuRenderer, world: &World, shape: ShapeId, cam
     let roi = footprint_roi(&cloud, &all, camera, 2.0);
     let mut mask = vec![false; (camera.width * camera.height) as usize];
     if roi.pixels() == 0 {
-        return mask;
+        return (mask, Vec::new());
     }
     let out = renderer.forward(&cloud, camera, roi);
+    let palette = crate::correct::palette(out.colour.iter().zip(&out.alpha).filter(|(_, a)| **a > 0.5).map(|(c, a)| *c / *a), 0.01);
     for y in roi.y0..roi.y1 {
         for x in roi.x0..roi.x1 {
             let a = out.alpha[((y - roi.y0) * roi.width() + x - roi.x0) as usize];
             mask[(y * camera.width + x) as usize] = a > 0.5;
         }
     }
-    mask
+    (mask, palette)
 }
 
 /// Silhouette measurements of one object, and overlays kept for the contact sheet.
@@ -54,21 +67,54 @@ pub struct SilhouetteMeter {
     pub object: String,
     pub mask: ColourMask,
     renderer: CpuRenderer,
-    /// Per camera: (t, IoU).
-    pub series: Vec<Vec<(f64, f32)>>,
+    /// Pixel colour distance beyond which neither the object nor the static scene explains a pixel.
+    occluder_threshold: f32,
+    /// The static scene rendered into each camera (computed on first use).
+    backgrounds: Vec<Option<Vec<Vec3>>>,
+    /// Per camera: (t, IoU, IoU of the visible part).
+    pub series: Vec<Vec<(f64, f32, f32)>>,
 }
 
 impl SilhouetteMeter {
-    pub fn new(shape: ShapeId, object: &str, mask: ColourMask, cameras: usize, render: &RenderSettings) -> Self {
-        Self { shape, object: object.to_string(), mask, renderer: CpuRenderer::new(render.clone()), series: vec![Vec::new(); cameras] }
+    pub fn new(shape: ShapeId, object: &str, mask: ColourMask, cameras: usize, render: &RenderSettings, occluder_threshold: f32) -> Self {
+        Self {
+            shape,
+            object: object.to_string(),
+            mask,
+            renderer: CpuRenderer::new(render.clone()),
+            occluder_threshold,
+            backgrounds: vec![None; cameras],
+            series: vec![Vec::new(); cameras],
+        }
     }
 
     /// Measure camera `c`'s image; returns the overlay (green: both, red: mask only, blue:
     /// silhouette only) when `overlay` is asked for.
     pub fn measure(&mut self, world: &World, c: usize, camera: &Camera, image: &[Vec3], t: f64, overlay: bool) -> Option<Vec<Vec3>> {
-        let sil = silhouette(&mut self.renderer, world, self.shape, camera);
+        let (sil, palette) = silhouette(&mut self.renderer, world, self.shape, camera);
         let mask = self.mask.segment(image, camera.width, camera.height);
-        self.series[c].push((t, crate::init::mask::iou(&sil, &mask)));
+        if self.backgrounds[c].is_none() {
+            let full = GaussianCloud::from_world(world);
+            let mut scene = GaussianCloud::default();
+            (0..full.len()).filter(|&i| world.gaussians.parent[i] == crate::world::NO_PARENT).for_each(|i| scene.push(full.get(i)));
+            self.backgrounds[c] = Some(self.renderer.forward(&scene, camera, Roi::full(camera)).colour);
+        }
+        let background = self.backgrounds[c].as_deref().unwrap_or_default();
+        let threshold = self.occluder_threshold;
+        let (mut inter, mut union) = (0usize, 0usize);
+        for k in 0..mask.len() {
+            if !(sil[k] || mask[k]) {
+                continue;
+            }
+            let o = image[k];
+            let explained = mask[k] || background.get(k).is_some_and(|b| o.distance(*b) <= threshold) || palette.iter().any(|p| same_surface(o, *p, threshold));
+            if explained {
+                inter += (sil[k] && mask[k]) as usize;
+                union += 1;
+            }
+        }
+        let visible = if union == 0 { 1.0 } else { inter as f32 / union as f32 };
+        self.series[c].push((t, crate::init::mask::iou(&sil, &mask), visible));
         overlay.then(|| {
             image
                 .iter()

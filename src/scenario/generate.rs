@@ -2,7 +2,7 @@
 //! with sensor noise and exposure drift, and write a recording (MCAP: images, camera info,
 //! /tf_static, joint states), the ground truth (CSV of object poses) and a replay config.
 
-use super::{build, cameras, observe, truth_config};
+use super::{build, cameras, observe, observe_depth_and_labels, truth_config};
 use crate::config::{Config, SceneConfig};
 use crate::math::Pose;
 use crate::msgs::{self, JointState, Time};
@@ -57,6 +57,14 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
         let t = k as f64 * dt;
         let exposure = 1.0 + 0.03 * (t as f32 * 1.7).sin();
         let images = observe(&truth.scene.world, &cams, opts.noise, exposure, k as u64);
+        if k == 0 {
+            // What initialisation from RGB-D starts from: depth and instance masks of the first frame.
+            for (i, (c, (depth, labels))) in cams.iter().zip(observe_depth_and_labels(&truth.scene.world, &cams, super::object_names(name))).enumerate() {
+                let frame = record::optical_frame(&camera_name(i));
+                rec.write(&record::depth_topic(&camera_name(i)), msgs::schema::image(), Time::from_seconds(t), &record::depth32(c.width, c.height, &depth, t, &frame))?;
+                rec.write(&record::mask_topic(&camera_name(i)), msgs::schema::image(), Time::from_seconds(t), &record::mono8(c.width, c.height, labels, t, &frame))?;
+            }
+        }
         for (i, (c, img)) in cams.iter().zip(&images).enumerate() {
             let frame = record::optical_frame(&camera_name(i));
             let data = img.iter().flat_map(|p| (p.clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round().to_array().map(|v| v as u8)).collect();
