@@ -51,11 +51,15 @@ pub struct RgbdObjectConfig {
     /// Total mass, kg.
     pub mass: f32,
     pub particle_radius: f32,
+    /// A rope (a chain of particles along its centre line) instead of a rigid object.
+    pub rope: bool,
+    /// Rope only: stiffness of the bending constraints in (0, 1].
+    pub bending_stiffness: f32,
 }
 
 impl Default for RgbdObjectConfig {
     fn default() -> Self {
-        Self { name: String::new(), label: 1, mass: 0.2, particle_radius: 0.005 }
+        Self { name: String::new(), label: 1, mass: 0.2, particle_radius: 0.005, rope: false, bending_stiffness: 0.3 }
     }
 }
 

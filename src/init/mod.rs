@@ -70,6 +70,8 @@ pub struct InitReport {
     pub ground: Option<(Vec3, f32)>,
     pub objects: BTreeMap<String, ObjectInit>,
     pub rgbd_objects: BTreeMap<String, rgbd::RgbdObjectReport>,
+    /// No instance masks were recorded: labels are clusters of depth points, largest first.
+    pub labels_from_clusters: bool,
     pub table: Option<table::ColourFit>,
     pub seconds: f64,
 }
@@ -105,9 +107,11 @@ pub fn settle_on_ground(world: &mut crate::world::World, shape: crate::world::Sh
     -gap
 }
 
-/// Build the world of `config.scene.objects` and `config.scene.table` from the first frames:
-/// load the objects, align each object that has a colour mask to it, then fit the table to the
-/// frames with the objects' pixels left out.
+/// Build the tracker's world from the first frames: the robot from its URDF at the first joint
+/// positions; the ground from depth (RANSAC) if asked; `scene.rgbd_objects` from depth and
+/// instance masks (or, without masks, clusters of depth points above the ground that are not the
+/// robot); `scene.objects` from their files, each aligned to its colour mask; every object settled
+/// onto the ground; then the table fitted to the frames with the objects' pixels left out.
 pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(String, f64)], progress: bool) -> Result<(Scene, InitReport)> {
     let clock = std::time::Instant::now();
     if config.scene.objects.is_empty() && config.scene.rgbd_objects.is_empty() {
@@ -115,30 +119,8 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(S
     }
     let mut report = InitReport::default();
     let mut builder = WorldBuilder::new();
-    let rgbd: Vec<rgbd::RgbdFrame> = frames
-        .iter()
-        .filter_map(|f| Some(rgbd::RgbdFrame { camera: f.camera, colour: f.images.first()?, depth: f.depth?, labels: f.labels? }))
-        .collect();
-    let mut ground = (config.physics.ground.normal.normalize_or(Vec3::Z), config.physics.ground.height);
-    if config.scene.ground_from_depth {
-        let points: Vec<Vec3> = rgbd.iter().flat_map(|f| (0..f.depth.len()).step_by(3).filter(|&k| f.labels[k] == 0).filter_map(|k| f.point(k))).collect();
-        let (normal, height, inliers) = rgbd::ground_ransac(&points, 300, 0.003, 1).context("no depth to fit the ground plane to")?;
-        if inliers < 100 {
-            bail!("the ground plane fitted to the depth has only {inliers} points");
-        }
-        ground = (normal, height);
-        report.ground = Some(ground);
-    }
-    for object in &config.scene.rgbd_objects {
-        if rgbd.is_empty() {
-            bail!("object '{}' is to be built from depth and masks, but the recording has none", object.name);
-        }
-        let (model, r) = rgbd::object_from_rgbd(&object.name, object.label, &rgbd, ground, object.particle_radius, 0.0, &config.render).with_context(|| format!("object '{}'", object.name))?;
-        builder.add_rigid_model(&object.name, &model, object.mass / model.particles.len() as f32);
-        report.objects.insert(object.name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None, colour_fit: Some(r.colour_fit.clone()) });
-        report.rgbd_objects.insert(object.name.clone(), r);
-    }
-    // The robot, at its first recorded joint positions (the replay drives it from then on).
+    // The robot first, at its first recorded joint positions (the replay drives it from then on):
+    // clustering needs to know which depth points are the robot.
     let robot = match &config.robot.urdf {
         Some(path) => {
             let model = crate::robot::RobotModel::load(path, &crate::robot::PackagePaths(config.robot.package_paths.clone()), config.robot.geometry)?;
@@ -154,6 +136,54 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(S
         }
         None => None,
     };
+    let with_depth: Vec<(&FirstFrames, &[Vec3], &[f32])> = frames.iter().filter_map(|f| Some((f, *f.images.first()?, f.depth?))).collect();
+    let mut ground = (config.physics.ground.normal.normalize_or(Vec3::Z), config.physics.ground.height);
+    let wants_depth = config.scene.ground_from_depth || !config.scene.rgbd_objects.is_empty();
+    if wants_depth && with_depth.is_empty() {
+        bail!("the configuration builds the ground or objects from depth, but the recording has no depth images");
+    }
+    if config.scene.ground_from_depth {
+        // Background points: not labelled as an object where masks exist.
+        let points: Vec<Vec3> = with_depth
+            .iter()
+            .flat_map(|(f, _, depth)| {
+                let probe = rgbd::RgbdFrame { camera: f.camera, colour: &[], depth, labels: &[] };
+                (0..depth.len()).step_by(3).filter(|&k| f.labels.is_none_or(|l| l[k] == 0)).filter_map(|k| probe.point(k)).collect::<Vec<_>>()
+            })
+            .collect();
+        let (normal, height, inliers) = rgbd::ground_ransac(&points, 300, 0.003, 1).context("no depth to fit the ground plane to")?;
+        if inliers < 100 {
+            bail!("the ground plane fitted to the depth has only {inliers} points");
+        }
+        ground = (normal, height);
+        report.ground = Some(ground);
+    }
+    if !config.scene.rgbd_objects.is_empty() {
+        // Instance masks as recorded, or else clusters of the depth points above the ground.
+        let labels: Vec<Vec<u8>> = if with_depth.iter().all(|(f, _, _)| f.labels.is_some()) {
+            with_depth.iter().map(|(f, _, _)| f.labels.map(|l| l.to_vec()).unwrap_or_default()).collect()
+        } else {
+            let w = builder.world();
+            let known: Vec<Vec3> = w.particles.position.clone();
+            let cameras: Vec<Camera> = with_depth.iter().map(|(f, _, _)| f.camera).collect();
+            let depths: Vec<&[f32]> = with_depth.iter().map(|(_, _, d)| *d).collect();
+            report.labels_from_clusters = true;
+            rgbd::cluster_labels(&cameras, &depths, ground, &known, 0.004, 0.02, 0.01)
+        };
+        let rgbd: Vec<rgbd::RgbdFrame> = with_depth.iter().zip(&labels).map(|((f, colour, depth), l)| rgbd::RgbdFrame { camera: f.camera, colour, depth, labels: l }).collect();
+        for object in config.scene.rgbd_objects.iter().filter(|o| o.rope) {
+            let (points, colour) = rgbd::rope_from_rgbd(&object.name, object.label, &rgbd, ground, object.particle_radius).with_context(|| format!("rope '{}'", object.name))?;
+            let rope = builder.add_rope(&object.name, &points, object.particle_radius, object.mass / points.len() as f32, object.bending_stiffness, colour);
+            builder.set_gaussian_look(rope, object.particle_radius, 0.97);
+            report.objects.insert(object.name.clone(), ObjectInit { particles: points.len(), gaussians: points.len(), mass_kg: object.mass, alignment: None, colour_fit: None });
+        }
+        for object in config.scene.rgbd_objects.iter().filter(|o| !o.rope) {
+            let (model, r) = rgbd::object_from_rgbd(&object.name, object.label, &rgbd, ground, object.particle_radius, 0.0, &config.render).with_context(|| format!("object '{}'", object.name))?;
+            builder.add_rigid_model(&object.name, &model, object.mass / model.particles.len() as f32);
+            report.objects.insert(object.name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None, colour_fit: Some(r.colour_fit.clone()) });
+            report.rgbd_objects.insert(object.name.clone(), r);
+        }
+    }
     let mut shapes = Vec::new();
     for object in &config.scene.objects {
         if object.name.is_empty() {

@@ -9,7 +9,7 @@ use super::table::{ColourFit, FitFrame, fit_colours};
 use super::{BodyGaussian, ObjectModel};
 use crate::math::Pose;
 use crate::render::{Camera, GaussianCloud, GaussianParams, RenderSettings, logit};
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use glam::{Quat, Vec2, Vec3, Vec4};
 use serde::Serialize;
 
@@ -90,6 +90,154 @@ fn smallest_eigenvector(m: glam::Mat3, guess: Vec3) -> Vec3 {
         v = (inv * v).try_normalize().unwrap_or(v);
     }
     v
+}
+
+/// A rope lying on the ground, labelled `label`: the centre line of its masked depth points as a
+/// chain of particle centres `2 * radius` apart, one particle radius above the ground, and its mean
+/// colour. The points are binned on a grid of `radius` cells in the ground plane; the geodesic
+/// distance (breadth first over neighbouring cells) from the cell farthest from an arbitrary start
+/// orders them along the rope, which is cut into as many stretches as particles of `2 * radius`
+/// fit its length; each particle is the mean of its stretch.
+pub fn rope_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Vec3, f32), radius: f32) -> Result<(Vec<Vec3>, Vec3)> {
+    use std::collections::{HashMap, VecDeque};
+    let (normal, height) = (ground.0.normalize(), ground.1);
+    let e1 = normal.any_orthonormal_vector();
+    let e2 = normal.cross(e1);
+    let mut cells: HashMap<glam::IVec2, (Vec2, usize)> = HashMap::new();
+    let (mut colour, mut seen) = (Vec3::ZERO, 0usize);
+    for f in frames {
+        f.check()?;
+        for k in 0..f.depth.len() {
+            if f.labels[k] != label {
+                continue;
+            }
+            colour += f.colour[k];
+            seen += 1;
+            if let Some(p) = f.point(k) {
+                let q = Vec2::new(p.dot(e1), p.dot(e2));
+                let cell = cells.entry((q / radius).floor().as_ivec2()).or_insert((Vec2::ZERO, 0));
+                cell.0 += q;
+                cell.1 += 1;
+            }
+        }
+    }
+    if cells.len() < 2 {
+        bail!("rope '{name}' (label {label}): too few depth points in its masks");
+    }
+    let neighbours = |c: glam::IVec2| (-1..=1).flat_map(move |dy| (-1..=1).map(move |dx| c + glam::IVec2::new(dx, dy))).filter(move |n| *n != c);
+    let bfs = |start: glam::IVec2| {
+        let mut dist: HashMap<glam::IVec2, f32> = HashMap::from([(start, 0.0)]);
+        let mut queue = VecDeque::from([start]);
+        while let Some(c) = queue.pop_front() {
+            for n in neighbours(c) {
+                if cells.contains_key(&n) && !dist.contains_key(&n) {
+                    dist.insert(n, dist[&c] + (n - c).as_vec2().length() * radius);
+                    queue.push_back(n);
+                }
+            }
+        }
+        dist
+    };
+    let mut keys: Vec<glam::IVec2> = cells.keys().copied().collect();
+    keys.sort_by_key(|c| (c.x, c.y));
+    let farthest = |d: &HashMap<glam::IVec2, f32>| d.iter().max_by(|a, b| a.1.total_cmp(b.1).then((b.0.x, b.0.y).cmp(&(a.0.x, a.0.y)))).map(|(c, _)| *c);
+    let end = farthest(&bfs(keys[0])).context("empty rope")?;
+    let along = bfs(end);
+    // Cell centres span the rope's length less one cell; its particles touch end to end.
+    let length = along.values().copied().fold(0.0, f32::max) + radius;
+    let n = ((length / (2.0 * radius)).round() as usize).max(2);
+    let pitch = length / n as f32;
+    let mut bins = vec![(Vec2::ZERO, 0usize); n];
+    for (c, d) in &along {
+        let (sum, count) = cells[c];
+        let b = (((d + radius / 2.0) / pitch).floor().max(0.0) as usize).min(n - 1);
+        bins[b].0 += sum;
+        bins[b].1 += count;
+    }
+    let points: Vec<Vec3> = bins
+        .iter()
+        .filter(|b| b.1 > 0)
+        .map(|(sum, count)| {
+            let q = *sum / *count as f32;
+            e1 * q.x + e2 * q.y + normal * (height + radius)
+        })
+        .collect();
+    Ok((points, colour / seen.max(1) as f32))
+}
+
+/// Instance labels without masks: the depth points more than `min_height` above the ground and
+/// farther than `clearance` from every point of `known` (e.g. the robot's particles), grouped into
+/// connected clusters on a grid of `cell` metres; label k + 1 marks the k-th largest cluster.
+pub fn cluster_labels(cameras: &[Camera], depths: &[&[f32]], ground: (Vec3, f32), known: &[Vec3], min_height: f32, clearance: f32, cell: f32) -> Vec<Vec<u8>> {
+    use std::collections::HashMap;
+    let key = |p: Vec3| (p / cell).floor().as_ivec3();
+    let near_known: std::collections::HashSet<glam::IVec3> = {
+        let reach = (clearance / cell).ceil() as i32;
+        let mut set = std::collections::HashSet::new();
+        for p in known {
+            let k = key(*p);
+            for dz in -reach..=reach {
+                for dy in -reach..=reach {
+                    for dx in -reach..=reach {
+                        set.insert(k + glam::IVec3::new(dx, dy, dz));
+                    }
+                }
+            }
+        }
+        set
+    };
+    // Candidate points per pixel, and the occupied cells.
+    let mut pixel_cells: Vec<Vec<Option<glam::IVec3>>> = Vec::new();
+    let mut occupied: HashMap<glam::IVec3, usize> = HashMap::new();
+    for (camera, depth) in cameras.iter().zip(depths) {
+        let frame = RgbdFrame { camera: *camera, colour: &[], depth, labels: &[] };
+        let cells: Vec<Option<glam::IVec3>> = (0..depth.len())
+            .map(|k| {
+                let p = frame.point(k)?;
+                let k = key(p);
+                (ground.0.dot(p) - ground.1 > min_height && !near_known.contains(&k)).then_some(k)
+            })
+            .collect();
+        for c in cells.iter().flatten() {
+            *occupied.entry(*c).or_insert(0) += 1;
+        }
+        pixel_cells.push(cells);
+    }
+    // Connected components of occupied cells (26-neighbourhood).
+    let mut component: HashMap<glam::IVec3, usize> = HashMap::new();
+    let mut sizes = Vec::new();
+    let mut cells: Vec<glam::IVec3> = occupied.keys().copied().collect();
+    cells.sort_by_key(|c| (c.x, c.y, c.z));
+    for start in cells {
+        if component.contains_key(&start) {
+            continue;
+        }
+        let id = sizes.len();
+        let (mut stack, mut size) = (vec![start], 0usize);
+        component.insert(start, id);
+        while let Some(c) = stack.pop() {
+            size += occupied[&c];
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let n = c + glam::IVec3::new(dx, dy, dz);
+                        if occupied.contains_key(&n) && !component.contains_key(&n) {
+                            component.insert(n, id);
+                            stack.push(n);
+                        }
+                    }
+                }
+            }
+        }
+        sizes.push(size);
+    }
+    let mut order: Vec<usize> = (0..sizes.len()).collect();
+    order.sort_by(|a, b| sizes[*b].cmp(&sizes[*a]).then(a.cmp(b)));
+    let mut rank = vec![0u8; sizes.len()];
+    for (r, &c) in order.iter().enumerate().take(255) {
+        rank[c] = r as u8 + 1;
+    }
+    pixel_cells.iter().map(|cells| cells.iter().map(|c| c.map_or(0, |c| rank[component[&c]])).collect()).collect()
 }
 
 /// How an object was found.
