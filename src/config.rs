@@ -80,11 +80,14 @@ pub struct ObjectConfig {
     /// Adam steps fitting the object's colours to the inside of `mask` in the first frame, after
     /// the alignment (the file's colours were captured under other lighting); 0 keeps them.
     pub colour_fit_steps: u32,
+    /// Adam steps fitting the Gaussians' opacities and sizes to `mask` in the first frames, after
+    /// the table is fitted; 0 keeps them.
+    pub silhouette_fit_steps: u32,
 }
 
 impl Default for ObjectConfig {
     fn default() -> Self {
-        Self { name: String::new(), embodied_gaussians: PathBuf::new(), mass: 0.2, mask: None, align_at_start: true, colour_fit_steps: 100 }
+        Self { name: String::new(), embodied_gaussians: PathBuf::new(), mass: 0.2, mask: None, align_at_start: true, colour_fit_steps: 100, silhouette_fit_steps: 100 }
     }
 }
 

@@ -154,6 +154,96 @@ pub fn align_on_table(world: &mut World, shape: ShapeId, views: &[MaskView], nor
     }
 }
 
+/// What the silhouette fit did: mean IoU over the views before and after.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct SilhouetteFit {
+    pub steps: u32,
+    pub iou_before: f32,
+    pub iou_after: f32,
+}
+
+/// Fit the opacities and sizes of `shape`'s Gaussians (not their positions) so that its rendered
+/// coverage matches the masks (Adam on the squared difference of alpha and mask over a window
+/// around the object; `ignore` leaves out pixels where something unmodelled stands in front).
+pub fn fit_silhouette(world: &mut World, shape: ShapeId, views: &[MaskView], ignore: &[Vec<bool>], steps: u32, render: &RenderSettings) -> anyhow::Result<SilhouetteFit> {
+    use crate::correct::adam::Adam;
+    use crate::render::{PixelGrads, footprint_roi};
+    let ids = world.gaussians_of(shape);
+    let full = GaussianCloud::from_world(world);
+    let mut cloud = GaussianCloud::default();
+    ids.iter().for_each(|&i| cloud.push(full.get(i)));
+    let all: Vec<usize> = (0..cloud.len()).collect();
+    let windows: Vec<Roi> = views.iter().map(|v| footprint_roi(&cloud, &all, &v.camera, 8.0)).collect();
+    let mut renderer = CpuRenderer::new(RenderSettings { background: Vec3::ZERO, ..render.clone() });
+    let n = cloud.len();
+    let (mut adam_o, mut adam_s) = (Adam::new(0.9, 0.999, 1e-8), Adam::new(0.9, 0.999, 1e-8));
+    adam_o.reset(n);
+    adam_s.reset(3 * n);
+    let mut opacity: Vec<f32> = cloud.opacity_logit.clone();
+    let mut scale: Vec<f32> = cloud.log_scale.iter().flat_map(|s| s.to_array()).collect();
+    let start_scale = scale.clone();
+    let mut fit = SilhouetteFit { steps, ..Default::default() };
+    for step in 0..=steps {
+        for i in 0..n {
+            cloud.opacity_logit[i] = opacity[i];
+            cloud.log_scale[i] = Vec3::from_slice(&scale[3 * i..]);
+        }
+        let (mut g_o, mut g_s) = (vec![0.0f32; n], vec![0.0f32; 3 * n]);
+        let mut iou_sum = 0.0;
+        for ((v, w), skip) in views.iter().zip(&windows).zip(ignore) {
+            if w.pixels() == 0 {
+                continue;
+            }
+            let out = renderer.forward(&cloud, &v.camera, *w);
+            let (mut inter, mut union) = (0usize, 0usize);
+            let mut d_alpha = vec![0.0f32; w.pixels()];
+            for y in w.y0..w.y1 {
+                for x in w.x0..w.x1 {
+                    let (k, full_k) = (((y - w.y0) * w.width() + x - w.x0) as usize, (y * v.camera.width + x) as usize);
+                    if skip[full_k] {
+                        continue;
+                    }
+                    let (a, m) = (out.alpha[k], v.mask[full_k]);
+                    inter += (a > 0.5 && m) as usize;
+                    union += (a > 0.5 || m) as usize;
+                    d_alpha[k] = 2.0 * (a - m as u8 as f32) / w.pixels() as f32;
+                }
+            }
+            iou_sum += if union == 0 { 1.0 } else { inter as f32 / union as f32 };
+            if step == steps {
+                continue;
+            }
+            let g = renderer.backward(&cloud, &PixelGrads { colour: vec![Vec3::ZERO; w.pixels()], alpha: d_alpha, ..Default::default() })?;
+            for i in 0..n {
+                g_o[i] += g.opacity_logit[i];
+                for j in 0..3 {
+                    g_s[3 * i + j] += g.log_scale[i][j];
+                }
+            }
+        }
+        let iou = iou_sum / views.len().max(1) as f32;
+        if step == 0 {
+            fit.iou_before = iou;
+        }
+        if step == steps {
+            fit.iou_after = iou;
+            break;
+        }
+        adam_o.step(&mut opacity, &g_o, 0.05);
+        adam_s.step(&mut scale, &g_s, 0.01);
+        // Sizes stay within a factor of two of the file's.
+        for (s, s0) in scale.iter_mut().zip(&start_scale) {
+            *s = s.clamp(s0 - std::f32::consts::LN_2, s0 + std::f32::consts::LN_2);
+        }
+    }
+    for (k, &i) in ids.iter().enumerate() {
+        world.gaussians.opacity[i] = crate::render::sigmoid(opacity[k]);
+        let s = Vec3::from_slice(&scale[3 * k..]);
+        world.gaussians.scale[i] = Vec3::new(s.x.exp(), s.y.exp(), s.z.exp());
+    }
+    Ok(fit)
+}
+
 /// Compass search: try a step up and down each coordinate, take the best gain, halve the steps
 /// when nothing improves, stop at 0.5 mm / 0.25 degrees.
 fn pattern_search(search: &mut Search, mut x: [f32; 3], mut score: f32) -> (f32, [f32; 3]) {

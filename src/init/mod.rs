@@ -61,6 +61,7 @@ pub struct ObjectInit {
     pub mass_kg: f32,
     pub alignment: Option<align::Alignment>,
     pub colour_fit: Option<table::ColourFit>,
+    pub silhouette_fit: Option<align::SilhouetteFit>,
 }
 
 /// What initialisation did and how long it took.
@@ -175,12 +176,12 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(S
             let (points, colour) = rgbd::rope_from_rgbd(&object.name, object.label, &rgbd, ground, object.particle_radius).with_context(|| format!("rope '{}'", object.name))?;
             let rope = builder.add_rope(&object.name, &points, object.particle_radius, object.mass / points.len() as f32, object.bending_stiffness, colour);
             builder.set_gaussian_look(rope, object.particle_radius, 0.97);
-            report.objects.insert(object.name.clone(), ObjectInit { particles: points.len(), gaussians: points.len(), mass_kg: object.mass, alignment: None, colour_fit: None });
+            report.objects.insert(object.name.clone(), ObjectInit { particles: points.len(), gaussians: points.len(), mass_kg: object.mass, alignment: None, colour_fit: None, silhouette_fit: None });
         }
         for object in config.scene.rgbd_objects.iter().filter(|o| !o.rope) {
             let (model, r) = rgbd::object_from_rgbd(&object.name, object.label, &rgbd, ground, object.particle_radius, 0.0, &config.render).with_context(|| format!("object '{}'", object.name))?;
             builder.add_rigid_model(&object.name, &model, object.mass / model.particles.len() as f32);
-            report.objects.insert(object.name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None, colour_fit: Some(r.colour_fit.clone()) });
+            report.objects.insert(object.name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None, colour_fit: Some(r.colour_fit.clone()), silhouette_fit: None });
             report.rgbd_objects.insert(object.name.clone(), r);
         }
     }
@@ -195,7 +196,7 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(S
             bail!("object '{name}': mass must be positive, got {}", object.mass);
         }
         let s = builder.add_rigid_model(&name, &model, object.mass / model.particles.len() as f32);
-        report.objects.insert(name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None, colour_fit: None });
+        report.objects.insert(name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None, colour_fit: None, silhouette_fit: None });
         shapes.push((s, name, object));
     }
     let mut world = builder.build();
@@ -279,6 +280,34 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(S
             world.gaussians.push(NO_PARENT, disks.mean[i], Quat::from_xyzw(r.x, r.y, r.z, r.w).normalize(), scale, crate::render::sigmoid(disks.opacity_logit[i]), disks.colour[i]);
         }
         report.table = Some(fit);
+    }
+    // Silhouettes: each masked object's coverage fitted to its masks in the first frames, leaving
+    // out pixels that neither it nor the table explains (an unmodelled arm in front of it).
+    for (s, name, object) in &shapes {
+        let (Some(mask), true) = (object.mask, object.silhouette_fit_steps > 0) else { continue };
+        let full = crate::render::GaussianCloud::from_world(&world);
+        let mut scene = crate::render::GaussianCloud::default();
+        (0..full.len()).filter(|&i| world.gaussians.parent[i] == NO_PARENT).for_each(|i| scene.push(full.get(i)));
+        let mut object_cloud = crate::render::GaussianCloud::default();
+        world.gaussians_of(*s).iter().for_each(|&i| object_cloud.push(full.get(i)));
+        let mut renderer = crate::render::cpu::CpuRenderer::new(config.render.clone());
+        let mut views = Vec::new();
+        let mut ignores = Vec::new();
+        for (f, image) in &first {
+            let m = mask.segment(image, f.camera.width, f.camera.height);
+            let table = renderer.forward(&scene, &f.camera, crate::render::Roi::full(&f.camera)).colour;
+            let own = renderer.forward(&object_cloud, &f.camera, crate::render::Roi::full(&f.camera));
+            let palette = crate::correct::palette(own.colour.iter().zip(&own.alpha).filter(|(_, a)| **a > 0.5).map(|(c, a)| *c / *a), 0.01);
+            let ignore: Vec<bool> = (0..m.len())
+                .map(|k| !m[k] && image[k].distance(table[k]) > 0.35 && !palette.iter().any(|p| crate::correct::same_surface(image[k], *p, 0.35)))
+                .collect();
+            views.push(align::MaskView { camera: f.camera, mask: m });
+            ignores.push(dilate(&ignore, f.camera.width, f.camera.height, 2));
+        }
+        let fit = align::fit_silhouette(&mut world, *s, &views, &ignores, object.silhouette_fit_steps, &config.render)?;
+        if let Some(o) = report.objects.get_mut(name) {
+            o.silhouette_fit = Some(fit);
+        }
     }
     report.seconds = clock.elapsed().as_secs_f64();
     Ok((Scene { world, scripts: Vec::new(), robot }, report))
