@@ -121,6 +121,34 @@ impl Default for TableConfig {
 
 pub use crate::init::ColourMask;
 
+impl SceneConfig {
+    pub fn validate(&self) -> Result<()> {
+        for o in &self.objects {
+            if o.name.is_empty() || !(o.mass.is_finite() && o.mass > 0.0) {
+                bail!("scene.objects: every object needs a name and a positive mass ('{}', {})", o.name, o.mass);
+            }
+        }
+        for o in &self.rgbd_objects {
+            if o.name.is_empty() || o.label == 0 || !(o.mass.is_finite() && o.mass > 0.0) || !(o.particle_radius.is_finite() && o.particle_radius > 0.0) {
+                bail!("scene.rgbd_objects: '{}' needs a name, a label of 1 to 255, a positive mass and particle radius", o.name);
+            }
+            if o.rope && !(o.bending_stiffness > 0.0 && o.bending_stiffness <= 1.0) {
+                bail!("scene.rgbd_objects: rope '{}' needs bending_stiffness in (0, 1]", o.name);
+            }
+        }
+        if let Some(t) = &self.table {
+            let cells = ((t.max - t.min) / t.spacing).max_element();
+            if !(t.spacing.is_finite() && t.spacing > 0.0) || !(t.min.cmplt(t.max).all()) || !(cells <= 2000.0) {
+                bail!("scene.table: spacing must be positive, min below max, at most 2000 disks a side");
+            }
+            if !(t.fit_resolution > 0.0 && t.fit_resolution <= 1.0) || !(t.lr.is_finite() && t.lr >= 0.0) || !(t.fit_span.is_finite() && t.fit_span >= 0.0) || !t.drop.is_finite() {
+                bail!("scene.table: fit_resolution in (0, 1], lr and fit_span >= 0, drop finite");
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Position-based dynamics (spec section 2, "Predict").
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -266,6 +294,7 @@ impl Config {
         config.physics.validate()?;
         config.robot.validate()?;
         config.correct.validate()?;
+        config.scene.validate()?;
         Ok(config)
     }
 
@@ -326,6 +355,17 @@ mod tests {
         assert!(format!("{e:#}").contains("damping"), "{e:#}");
         let e = Config::from_yaml("physics:\n  substepz: 3\n").unwrap_err();
         assert!(format!("{e:#}").contains("substepz"), "{e:#}");
+    }
+
+    #[test]
+    fn bad_scene_values_are_rejected() {
+        let e = Config::from_yaml("scene:\n  rgbd_objects:\n    - {name: box, label: 0}\n").unwrap_err();
+        assert!(format!("{e:#}").contains("rgbd_objects"), "{e:#}");
+        let e = Config::from_yaml("scene:\n  table: {min: [0, 0], max: [1, 1], spacing: 0}\n").unwrap_err();
+        assert!(format!("{e:#}").contains("scene.table"), "{e:#}");
+        let e = Config::from_yaml("scene:\n  objects:\n    - {name: t, embodied_gaussians: t.json, mass: -1}\n").unwrap_err();
+        assert!(format!("{e:#}").contains("scene.objects"), "{e:#}");
+        assert!(Config::from_yaml("scene:\n  table: {min: [0, 0], max: [1, 1]}\n").is_ok());
     }
 
     #[test]
