@@ -180,10 +180,9 @@ impl Corrector {
                 }
                 // What the objects look like here, as rendered (single Gaussians can be outliers).
                 let rendered = self.renderer.forward(&objects, &v.camera, *w)?;
-                let palette = palette(rendered.colour.iter().zip(&rendered.alpha).filter(|(_, a)| **a > 0.5).map(|(c, a)| *c / *a), 0.01);
+                let palette = rendered_palette(&rendered.colour, &rendered.alpha);
                 let background = crop(self.background(world, &v.camera)?, v.camera.width, *w);
-                let explained = |o: Vec3, b: Vec3| o.distance(b) <= threshold || palette.iter().any(|c| same_surface(o, *c, threshold));
-                let wv: Vec<f32> = target.iter().zip(&background).map(|(o, b)| if explained(*o, *b) { 1.0 } else { 0.0 }).collect();
+                let wv: Vec<f32> = target.iter().zip(&background).map(|(o, b)| if explained(*o, *b, &palette, threshold) { 1.0 } else { 0.0 }).collect();
                 stats.occluded_pixels += wv.iter().filter(|x| **x == 0.0).count();
                 weights.push(wv);
             }
@@ -287,18 +286,27 @@ impl Corrector {
         let k = match self.backgrounds.iter().position(|(c, _)| c == camera) {
             Some(k) => k,
             None => {
-                let full = GaussianCloud::from_world(world);
-                let mut scene = GaussianCloud::default();
-                for i in (0..full.len()).filter(|&i| world.gaussians.parent[i] == NO_PARENT) {
-                    scene.push(full.get(i));
-                }
-                let out = self.renderer.forward(&scene, camera, Roi::full(camera))?;
+                let out = self.renderer.forward(&GaussianCloud::static_scene(world), camera, Roi::full(camera))?;
                 self.backgrounds.push((*camera, out.colour));
                 self.backgrounds.len() - 1
             }
         };
         Ok(&self.backgrounds[k].1)
     }
+}
+
+/// Whether the model explains an observed pixel colour: close (RGB distance within `threshold`) to
+/// the static scene rendered there (`background`), or the same surface as one of the colours the
+/// tracked objects render with (`palette`, see `same_surface`). Unexplained pixels show something
+/// the model does not have in front of it.
+pub fn explained(observed: Vec3, background: Vec3, palette: &[Vec3], threshold: f32) -> bool {
+    observed.distance(background) <= threshold || palette.iter().any(|c| same_surface(observed, *c, threshold))
+}
+
+/// The colours the Gaussians of a render cover (alpha > 0.5, un-premultiplied) with at least 1 % of
+/// those pixels (see `palette`).
+pub fn rendered_palette(colour: &[Vec3], alpha: &[f32]) -> Vec<Vec3> {
+    palette(colour.iter().zip(alpha).filter(|(_, a)| **a > 0.5).map(|(c, a)| *c / *a), 0.01)
 }
 
 /// Whether `observed` can be the surface of colour `model` under other light: its brightness

@@ -101,11 +101,8 @@ fn mask_centre_on_plane(views: &[MaskView], centre: Vec3, normal: Vec3) -> Optio
 /// Align `shape` on the ground plane (unit `normal`) to the masks, and move it there.
 pub fn align_on_table(world: &mut World, shape: ShapeId, views: &[MaskView], normal: Vec3, render: &RenderSettings) -> Alignment {
     let clock = std::time::Instant::now();
-    let full = GaussianCloud::from_world(world);
-    let mut cloud = GaussianCloud::default();
-    for i in world.gaussians_of(shape) {
-        cloud.push(full.get(i));
-    }
+    let ids = world.gaussians_of(shape);
+    let cloud = GaussianCloud::from_world_where(world, |i| ids.binary_search(&i).is_ok());
     let normal = normal.normalize_or(Vec3::Z);
     let centre = world.shape_centroid(shape);
     let e1 = normal.any_orthonormal_vector();
@@ -169,9 +166,7 @@ pub fn fit_silhouette(world: &mut World, shape: ShapeId, views: &[MaskView], ign
     use crate::correct::adam::Adam;
     use crate::render::{PixelGrads, footprint_roi};
     let ids = world.gaussians_of(shape);
-    let full = GaussianCloud::from_world(world);
-    let mut cloud = GaussianCloud::default();
-    ids.iter().for_each(|&i| cloud.push(full.get(i)));
+    let mut cloud = GaussianCloud::from_world_where(world, |i| ids.binary_search(&i).is_ok());
     let all: Vec<usize> = (0..cloud.len()).collect();
     let windows: Vec<Roi> = views.iter().map(|v| footprint_roi(&cloud, &all, &v.camera, 8.0)).collect();
     let mut renderer = CpuRenderer::new(RenderSettings { background: Vec3::ZERO, ..render.clone() });

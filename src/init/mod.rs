@@ -12,7 +12,7 @@ pub use mask::ColourMask;
 
 use crate::config::Config;
 use crate::math::Pose;
-use crate::render::Camera;
+use crate::render::{Camera, GaussianCloud};
 use crate::scene::WorldBuilder;
 use crate::scene::builtin::Scene;
 use crate::world::NO_PARENT;
@@ -20,6 +20,9 @@ use anyhow::{Context, Result, bail};
 use glam::{Quat, Vec3};
 use serde::Serialize;
 use std::collections::BTreeMap;
+
+/// Colour distance of the occluder test used while fitting silhouettes (see `correct::explained`).
+const OCCLUDER_THRESHOLD: f32 = 0.35;
 
 /// A Gaussian in an object's body frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -226,9 +229,7 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(S
         // The object's colours under this recording's lighting: fitted to the inside of its masks.
         if object.colour_fit_steps > 0 && !first.is_empty() {
             let ids = world.gaussians_of(*s);
-            let full = crate::render::GaussianCloud::from_world(&world);
-            let mut cloud = crate::render::GaussianCloud::default();
-            ids.iter().for_each(|&i| cloud.push(full.get(i)));
+            let mut cloud = GaussianCloud::from_world_where(&world, |i| ids.binary_search(&i).is_ok());
             let fit_frames: Vec<table::FitFrame> = first
                 .iter()
                 .map(|(f, image)| {
@@ -285,11 +286,9 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(S
     // out pixels that neither it nor the table explains (an unmodelled arm in front of it).
     for (s, name, object) in &shapes {
         let (Some(mask), true) = (object.mask, object.silhouette_fit_steps > 0) else { continue };
-        let full = crate::render::GaussianCloud::from_world(&world);
-        let mut scene = crate::render::GaussianCloud::default();
-        (0..full.len()).filter(|&i| world.gaussians.parent[i] == NO_PARENT).for_each(|i| scene.push(full.get(i)));
-        let mut object_cloud = crate::render::GaussianCloud::default();
-        world.gaussians_of(*s).iter().for_each(|&i| object_cloud.push(full.get(i)));
+        let scene = GaussianCloud::static_scene(&world);
+        let ids = world.gaussians_of(*s);
+        let object_cloud = GaussianCloud::from_world_where(&world, |i| ids.binary_search(&i).is_ok());
         let mut renderer = crate::render::cpu::CpuRenderer::new(config.render.clone());
         let mut views = Vec::new();
         let mut ignores = Vec::new();
@@ -297,10 +296,8 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(S
             let m = mask.segment(image, f.camera.width, f.camera.height);
             let table = renderer.forward(&scene, &f.camera, crate::render::Roi::full(&f.camera)).colour;
             let own = renderer.forward(&object_cloud, &f.camera, crate::render::Roi::full(&f.camera));
-            let palette = crate::correct::palette(own.colour.iter().zip(&own.alpha).filter(|(_, a)| **a > 0.5).map(|(c, a)| *c / *a), 0.01);
-            let ignore: Vec<bool> = (0..m.len())
-                .map(|k| !m[k] && image[k].distance(table[k]) > 0.35 && !palette.iter().any(|p| crate::correct::same_surface(image[k], *p, 0.35)))
-                .collect();
+            let palette = crate::correct::rendered_palette(&own.colour, &own.alpha);
+            let ignore: Vec<bool> = (0..m.len()).map(|k| !m[k] && !crate::correct::explained(image[k], table[k], &palette, OCCLUDER_THRESHOLD)).collect();
             views.push(align::MaskView { camera: f.camera, mask: m });
             ignores.push(dilate(&ignore, f.camera.width, f.camera.height, 2));
         }

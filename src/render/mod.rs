@@ -206,6 +206,21 @@ impl GaussianCloud {
     }
 }
 
+impl GaussianCloud {
+    /// The world's Gaussians that `keep` selects (by index), at the world's current state.
+    pub fn from_world_where(world: &World, keep: impl Fn(usize) -> bool) -> Self {
+        let full = Self::from_world(world);
+        let mut cloud = Self::default();
+        (0..full.len()).filter(|&i| keep(i)).for_each(|i| cloud.push(full.get(i)));
+        cloud
+    }
+
+    /// The static scene: Gaussians bonded to no particle.
+    pub fn static_scene(world: &World) -> Self {
+        Self::from_world_where(world, |i| world.gaussians.parent[i] == crate::world::NO_PARENT)
+    }
+}
+
 /// The pixel window covering the projected 3-sigma extent of the Gaussians `indices` in `camera`,
 /// plus `margin` pixels, clamped to the image (empty if none is in front of the camera).
 pub fn footprint_roi(cloud: &GaussianCloud, indices: &[usize], camera: &Camera, margin: f32) -> Roi {

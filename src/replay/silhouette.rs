@@ -3,7 +3,7 @@
 
 use crate::init::ColourMask;
 use crate::render::cpu::CpuRenderer;
-use crate::correct::same_surface;
+use crate::correct::explained;
 use crate::render::{Camera, GaussianCloud, RenderSettings, Roi, footprint_roi};
 use crate::world::{ShapeId, World};
 use anyhow::{Context, Result};
@@ -39,11 +39,8 @@ pub fn iou_stats(whole: &[f32], visible: &[f32]) -> IouStats {
 /// The object's silhouette (rendered alpha > 0.5) as a full-frame mask, and the colours it renders
 /// with (see `correct::palette`).
 pub fn silhouette(renderer: &mut CpuRenderer, world: &World, shape: ShapeId, camera: &Camera) -> (Vec<bool>, Vec<Vec3>) {
-    let full = GaussianCloud::from_world(world);
-    let mut cloud = GaussianCloud::default();
-    for i in world.gaussians_of(shape) {
-        cloud.push(full.get(i));
-    }
+    let ids = world.gaussians_of(shape);
+    let cloud = GaussianCloud::from_world_where(world, |i| ids.binary_search(&i).is_ok());
     let all: Vec<usize> = (0..cloud.len()).collect();
     let roi = footprint_roi(&cloud, &all, camera, 2.0);
     let mut mask = vec![false; (camera.width * camera.height) as usize];
@@ -51,7 +48,7 @@ pub fn silhouette(renderer: &mut CpuRenderer, world: &World, shape: ShapeId, cam
         return (mask, Vec::new());
     }
     let out = renderer.forward(&cloud, camera, roi);
-    let palette = crate::correct::palette(out.colour.iter().zip(&out.alpha).filter(|(_, a)| **a > 0.5).map(|(c, a)| *c / *a), 0.01);
+    let palette = crate::correct::rendered_palette(&out.colour, &out.alpha);
     for y in roi.y0..roi.y1 {
         for x in roi.x0..roi.x1 {
             let a = out.alpha[((y - roi.y0) * roi.width() + x - roi.x0) as usize];
@@ -94,10 +91,7 @@ impl SilhouetteMeter {
         let (sil, palette) = silhouette(&mut self.renderer, world, self.shape, camera);
         let mask = self.mask.segment(image, camera.width, camera.height);
         if self.backgrounds[c].is_none() {
-            let full = GaussianCloud::from_world(world);
-            let mut scene = GaussianCloud::default();
-            (0..full.len()).filter(|&i| world.gaussians.parent[i] == crate::world::NO_PARENT).for_each(|i| scene.push(full.get(i)));
-            self.backgrounds[c] = Some(self.renderer.forward(&scene, camera, Roi::full(camera)).colour);
+            self.backgrounds[c] = Some(self.renderer.forward(&GaussianCloud::static_scene(world), camera, Roi::full(camera)).colour);
         }
         let background = self.backgrounds[c].as_deref().unwrap_or_default();
         let threshold = self.occluder_threshold;
@@ -107,7 +101,7 @@ impl SilhouetteMeter {
                 continue;
             }
             let o = image[k];
-            let explained = mask[k] || background.get(k).is_some_and(|b| o.distance(*b) <= threshold) || palette.iter().any(|p| same_surface(o, *p, threshold));
+            let explained = mask[k] || background.get(k).is_some_and(|b| explained(o, *b, &palette, threshold));
             if explained {
                 inter += (sil[k] && mask[k]) as usize;
                 union += 1;
