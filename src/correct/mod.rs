@@ -1,7 +1,8 @@
 //! Correct: visual forces (spec section 2, "Correct"). After each predict step, Adam moves the
 //! tracked objects' Gaussians to reduce the photometric error against the camera images; each
-//! Gaussian's displacement becomes a force on its parent particle (gain x displacement, the
-//! particle's mass acting as visual inertia) that the next predict step applies. The world's
+//! Gaussian's displacement becomes a force on its parent particle (gain x displacement, averaged
+//! over the particle's Gaussians; the particle's mass acts as visual inertia) that the next predict
+//! step applies. The world's
 //! Gaussians are never modified: the optimisation runs on a copy that is dropped afterwards.
 //!
 //! This module owns the optimisation and the force rule; it renders through `render` and leaves
@@ -255,6 +256,12 @@ impl Corrector {
             self.previous = vec![Vec3::ZERO; cloud.len()];
         }
         let mut forces = vec![Vec3::ZERO; world.particles.len()];
+        // A particle's force follows the mean displacement of its Gaussians, so densifying the
+        // appearance (more Gaussians per particle) does not scale the forces up.
+        let mut bonded = vec![0u32; world.particles.len()];
+        for &i in &free {
+            bonded[world.gaussians.parent[i] as usize] += 1;
+        }
         for (k, &i) in free.iter().enumerate() {
             let mut d = Vec3::from_slice(&means[3 * k..]) - start[k];
             if !d.is_finite() || d.length() < c.min_displacement {
@@ -266,7 +273,7 @@ impl Corrector {
                 continue;
             }
             let p = world.gaussians.parent[i] as usize;
-            let f = c.gain * d + c.damping * rate;
+            let f = (c.gain * d + c.damping * rate) / bonded[p].max(1) as f32;
             forces[p] += f;
             stats.force[world.particles.shape[p] as usize] += f;
             stats.displaced += 1;

@@ -248,7 +248,11 @@ pub struct RgbdObjectReport {
     pub lattice_cells: usize,
     pub carved: usize,
     pub particles: usize,
+    /// Gaussians after densification.
+    pub gaussians: usize,
     pub colour_fit: ColourFit,
+    pub refine: RefineReport,
+    pub densified: ColourFit,
     pub seconds: f64,
 }
 
@@ -357,31 +361,219 @@ pub fn object_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Ve
     if kept.is_empty() {
         bail!("object '{name}': every cell of its bounding box was carved away");
     }
-    // One Gaussian per particle, coloured from the images inside the object's masks.
+    // One spherical Gaussian per cell, coloured from the images inside the object's masks.
     let mut cloud = GaussianCloud::default();
     let mean_colour = {
         let (sum, n) = frames.iter().flat_map(|f| f.colour.iter().zip(f.labels)).filter(|(_, l)| **l == label).fold((Vec3::ZERO, 0usize), |(s, n), (c, _)| (s + *c, n + 1));
         sum / n.max(1) as f32
     };
     let sigma = 0.6 * radius;
+    let q = Vec4::new(rotation.x, rotation.y, rotation.z, rotation.w);
     for b in &kept {
-        let q = rotation;
-        cloud.push(GaussianParams { mean: pose.transform_point(*b), rotation: Vec4::new(q.x, q.y, q.z, q.w), log_scale: Vec3::splat(sigma.ln()), opacity_logit: logit(0.95), colour: mean_colour });
+        cloud.push(GaussianParams { mean: pose.transform_point(*b), rotation: q, log_scale: Vec3::splat(sigma.ln()), opacity_logit: logit(0.95), colour: mean_colour });
     }
+    let object_render = RenderSettings { background: Vec3::ZERO, ..render.clone() };
     let fit_frames: Vec<FitFrame> = frames.iter().map(|f| FitFrame { camera: f.camera, image: f.colour, ignore: f.labels.iter().map(|l| *l != label).collect() }).collect();
-    let colour_fit = fit_colours(&mut cloud, &fit_frames, 60, 0.05, 1.0, &RenderSettings { background: Vec3::ZERO, ..render.clone() }, false)?;
-    let gaussians = kept.iter().zip(&cloud.colour).map(|(b, c)| BodyGaussian { mean: *b, rotation: Quat::IDENTITY, scale: Vec3::splat(sigma), opacity: 0.95, colour: *c }).collect();
+    let colour_fit = fit_colours(&mut cloud, &fit_frames, 60, 0.05, 1.0, &object_render, false)?;
+    // Rounds of Adam on the positions (photometric + mask loss), each followed by Jacobi steps that
+    // keep the Gaussians, as particle-sized spheres, apart and above the ground.
+    let masks: Vec<Vec<bool>> = frames.iter().map(|f| f.labels.iter().map(|l| *l == label).collect()).collect();
+    let refine = refine_positions(&mut cloud, frames, &masks, ground, radius, &object_render)?;
+    // Particles at the Gaussians' locations.
+    let inv = pose.inverse();
+    let body: Vec<Vec3> = cloud.mean.iter().map(|m| inv.transform_point(*m)).collect();
+    // Densify: the Gaussians of surface particles (a lattice neighbour missing) split into eight of
+    // half the size for finer appearance, their colours fitted again; all bond to their particle.
+    let occupied: std::collections::HashSet<[i32; 3]> = kept.iter().map(|b| cell_key(*b, step)).collect();
+    let surface: Vec<bool> = kept.iter().map(|b| {
+        let k = cell_key(*b, step);
+        [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]].iter().any(|d| !occupied.contains(&[k[0] + d[0], k[1] + d[1], k[2] + d[2]]))
+    }).collect();
+    let mut dense = GaussianCloud::default();
+    let mut owner = Vec::new();
+    for (i, b) in body.iter().enumerate() {
+        let g = cloud.get(i);
+        if !surface[i] {
+            dense.push(g);
+            owner.push(i);
+            continue;
+        }
+        for corner in 0..8 {
+            let o = Vec3::new(if corner & 1 == 0 { -0.5 } else { 0.5 }, if corner & 2 == 0 { -0.5 } else { 0.5 }, if corner & 4 == 0 { -0.5 } else { 0.5 }) * radius;
+            dense.push(GaussianParams { mean: pose.transform_point(*b + o), log_scale: Vec3::splat((sigma / 2.0).ln()), ..g });
+            owner.push(i);
+        }
+    }
+    let densified = fit_colours(&mut dense, &fit_frames, 30, 0.03, 1.0, &object_render, false)?;
+    let gaussians = (0..dense.len())
+        .map(|k| BodyGaussian { mean: inv.transform_point(dense.mean[k]), rotation: Quat::IDENTITY, scale: Vec3::splat(dense.log_scale[k].x.exp()), opacity: 0.95, colour: dense.colour[k] })
+        .collect();
     let report = RgbdObjectReport {
         points: points.len(),
         box_size: size.to_array(),
         lattice_cells: lattice.len(),
         carved: lattice.len() - kept.len(),
         particles: kept.len(),
+        gaussians: dense.len(),
         colour_fit,
+        refine,
+        densified,
         seconds: clock.elapsed().as_secs_f64(),
     };
-    let particles = kept.iter().map(|b| (*b, radius)).collect();
+    let particles = body.iter().map(|b| (*b, radius)).collect();
     Ok((ObjectModel { name: name.to_string(), pose, particles, gaussians }, report))
+}
+
+fn cell_key(b: Vec3, step: f32) -> [i32; 3] {
+    (b / step).round().as_ivec3().to_array()
+}
+
+/// What the position rounds did: the mean IoU of the object's rendered coverage with its masks
+/// before and after, and how far the Gaussians moved.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct RefineReport {
+    pub rounds: u32,
+    pub iou_before: f32,
+    pub iou_after: f32,
+    pub max_move_mm: f32,
+}
+
+/// Rounds of five Adam steps on the Gaussian means (colour error inside the masks plus coverage
+/// error everywhere in the object's window), each followed by four Jacobi steps of sphere-sphere
+/// separation (radius `radius`) and ground non-penetration, and a clamp to half a radius from the
+/// start.
+fn refine_positions(cloud: &mut GaussianCloud, frames: &[RgbdFrame], masks: &[Vec<bool>], ground: (Vec3, f32), radius: f32, render: &RenderSettings) -> Result<RefineReport> {
+    use crate::correct::adam::Adam;
+    use crate::render::{PixelGrads, Roi, cpu::CpuRenderer, footprint_roi};
+    const ROUNDS: u32 = 10;
+    let n = cloud.len();
+    let all: Vec<usize> = (0..n).collect();
+    let start = cloud.mean.clone();
+    let windows: Vec<Roi> = frames.iter().map(|f| footprint_roi(cloud, &all, &f.camera, 6.0)).collect();
+    let mut renderer = CpuRenderer::new(render.clone());
+    let mut adam = Adam::new(0.9, 0.999, 1e-8);
+    adam.reset(3 * n);
+    let mut means: Vec<f32> = cloud.mean.iter().flat_map(|m| m.to_array()).collect();
+    let mut report = RefineReport { rounds: ROUNDS, ..Default::default() };
+    for round in 0..=ROUNDS {
+        for it in 0..5 {
+            for i in 0..n {
+                cloud.mean[i] = Vec3::from_slice(&means[3 * i..]);
+            }
+            let mut grad = vec![0.0f32; 3 * n];
+            let mut iou = 0.0;
+            for ((f, w), mask) in frames.iter().zip(&windows).zip(masks) {
+                if w.pixels() == 0 {
+                    continue;
+                }
+                let out = renderer.forward(cloud, &f.camera, *w);
+                let (mut d_colour, mut d_alpha) = (vec![Vec3::ZERO; w.pixels()], vec![0.0f32; w.pixels()]);
+                let (mut inter, mut union) = (0usize, 0usize);
+                for y in w.y0..w.y1 {
+                    for x in w.x0..w.x1 {
+                        let (k, full) = (((y - w.y0) * w.width() + x - w.x0) as usize, (y * f.camera.width + x) as usize);
+                        let m = mask[full];
+                        if m {
+                            d_colour[k] = 2.0 * (out.colour[k] - f.colour[full]) / w.pixels() as f32;
+                        }
+                        d_alpha[k] = 2.0 * (out.alpha[k] - m as u8 as f32) / w.pixels() as f32;
+                        inter += (out.alpha[k] > 0.5 && m) as usize;
+                        union += (out.alpha[k] > 0.5 || m) as usize;
+                    }
+                }
+                iou += inter as f32 / union.max(1) as f32 / frames.len() as f32;
+                if round < ROUNDS {
+                    let g = renderer.backward(cloud, &PixelGrads { colour: d_colour, alpha: d_alpha, ..Default::default() })?;
+                    for (i, gm) in g.mean.iter().enumerate() {
+                        for j in 0..3 {
+                            grad[3 * i + j] += gm[j];
+                        }
+                    }
+                }
+            }
+            if round == 0 && it == 0 {
+                report.iou_before = iou;
+            }
+            if round == ROUNDS {
+                report.iou_after = iou;
+                break;
+            }
+            adam.step(&mut means, &grad, 0.0002);
+        }
+        if round == ROUNDS {
+            break;
+        }
+        for _ in 0..4 {
+            jacobi_separate(&mut means, radius, ground);
+        }
+        // Carving fixed the shape; the rounds only refine the surfaces: every Gaussian stays
+        // within half a radius of its cell.
+        for (i, s0) in start.iter().enumerate() {
+            let m = Vec3::from_slice(&means[3 * i..]);
+            let d = m - *s0;
+            if d.length() > 0.5 * radius {
+                means[3 * i..3 * i + 3].copy_from_slice(&(*s0 + d.normalize() * 0.5 * radius).to_array());
+            }
+        }
+    }
+    for i in 0..n {
+        cloud.mean[i] = Vec3::from_slice(&means[3 * i..]);
+    }
+    report.max_move_mm = cloud.mean.iter().zip(&start).map(|(a, b)| a.distance(*b)).fold(0.0, f32::max) * 1e3;
+    Ok(report)
+}
+
+/// One Jacobi step over spheres of `radius` at `means` (x, y, z flattened): overlapping pairs are
+/// pushed apart equally, corrections averaged per sphere; then none below the ground.
+fn jacobi_separate(means: &mut [f32], radius: f32, ground: (Vec3, f32)) {
+    use std::collections::HashMap;
+    let n = means.len() / 3;
+    let pos: Vec<Vec3> = (0..n).map(|i| Vec3::from_slice(&means[3 * i..])).collect();
+    let p = |i: usize| pos[i];
+    let cell = 2.0 * radius;
+    let mut grid: HashMap<[i32; 3], Vec<usize>> = HashMap::new();
+    for i in 0..n {
+        grid.entry((p(i) / cell).floor().as_ivec3().to_array()).or_default().push(i);
+    }
+    let mut delta = vec![Vec3::ZERO; n];
+    let mut count = vec![0u32; n];
+    for i in 0..n {
+        let c = (p(i) / cell).floor().as_ivec3();
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let Some(others) = grid.get(&(c + glam::IVec3::new(dx, dy, dz)).to_array()) else { continue };
+                    for &j in others {
+                        if j <= i {
+                            continue;
+                        }
+                        let d = p(j) - p(i);
+                        let dist = d.length();
+                        // 1e-4: lattice neighbours touch exactly; rounding must not push them.
+                        if dist < 2.0 * radius - 1e-4 && dist > 1e-9 {
+                            let push = d / dist * (2.0 * radius - dist) * 0.5;
+                            delta[i] -= push;
+                            delta[j] += push;
+                            count[i] += 1;
+                            count[j] += 1;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let (normal, height) = ground;
+    for i in 0..n {
+        let mut q = p(i);
+        if count[i] > 0 {
+            q += delta[i] / count[i] as f32;
+        }
+        let below = height + radius - normal.dot(q);
+        if below > 0.0 {
+            q += normal * below;
+        }
+        means[3 * i..3 * i + 3].copy_from_slice(&q.to_array());
+    }
 }
 
 #[cfg(test)]
