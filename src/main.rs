@@ -55,6 +55,9 @@ enum Command {
         /// Use only the first N cameras (by name).
         #[arg(long)]
         cameras: Option<usize>,
+        /// Write the silhouette IoU table into this Markdown file between its real-iou markers.
+        #[arg(long)]
+        readme: Option<PathBuf>,
     },
     /// Convert another project's recording layout into a pegs recording and replay configuration.
     Import {
@@ -293,7 +296,7 @@ fn main() -> Result<()> {
                 println!("updated {}", path.display());
             }
         }
-        Command::Replay { recording, config, out, no_visual_forces, no_physics, compare, cameras } => {
+        Command::Replay { recording, config, out, no_visual_forces, no_physics, compare, cameras, readme } => {
             let config = Config::load(&config)?;
             let opts = pegs::replay::ReplayOptions { visual_forces: !no_visual_forces, physics: !no_physics, progress: true, max_cameras: cameras };
             let m = if compare { pegs::replay::run_compare(&recording, &config, &out, true)? } else { pegs::replay::run(&recording, &config, &out, opts)? };
@@ -316,6 +319,11 @@ fn main() -> Result<()> {
                 println!("  rejected {} images and {} joint states (see metrics.json warnings)", m.rejected_images, m.rejected_joint_states);
             }
             println!("wrote {0}/objects.csv and {0}/metrics.json", out.display());
+            if let Some(path) = readme {
+                use pegs::replay::silhouette;
+                pegs::scenario::table::write_between(&path, silhouette::TABLE_START, silhouette::TABLE_END, &silhouette::iou_table(&m))?;
+                println!("updated {}", path.display());
+            }
         }
         Command::Import { what: ImportFormat::EmbodiedGaussians { dir, out, config_out, start, duration, max_rate } } => {
             let opts = pegs::import::embodied_gaussians::ImportOptions { start, duration, max_rate, progress: true };

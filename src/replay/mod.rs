@@ -3,7 +3,7 @@
 //! later than the tick, and the robot follows the recorded joint states interpolated in time.
 //! Deterministic: the same recording and configuration give the same outputs.
 
-mod silhouette;
+pub mod silhouette;
 
 use crate::config::Config;
 use crate::init::{self, FirstFrames};
