@@ -10,6 +10,7 @@ pub mod bench;
 pub mod config;
 pub mod correct;
 pub mod demo;
+pub mod diagnose;
 pub mod import;
 pub mod init;
 pub mod math;

@@ -59,6 +59,15 @@ enum Command {
         #[arg(long)]
         readme: Option<PathBuf>,
     },
+    /// Replay a recording and name the physical effects that explain its corrective forces
+    /// (first steps of the diagnosis): DIR/residuals.csv and DIR/diagnosis.json.
+    Diagnose {
+        recording: PathBuf,
+        #[arg(long)]
+        config: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Convert another project's recording layout into a pegs recording and replay configuration.
     Import {
         #[command(subcommand)]
@@ -324,6 +333,20 @@ fn main() -> Result<()> {
                 pegs::scenario::table::write_between(&path, silhouette::TABLE_START, silhouette::TABLE_END, &silhouette::iou_table(&m))?;
                 println!("updated {}", path.display());
             }
+        }
+        Command::Diagnose { recording, config, out } => {
+            let config = Config::load(&config)?;
+            for d in pegs::diagnose::name_effects(&recording, &config, &out, true)? {
+                let s = &d.selection;
+                if s.found.is_empty() {
+                    println!("{}: no significant missing physics (held-out residual {:.3} N rms)", d.object, s.heldout_rms_before);
+                }
+                for f in &s.found {
+                    let coefficients: Vec<String> = f.coefficients.iter().map(|c| format!("{} {:.4} [{:.4}, {:.4}] {}", c.name, c.value, c.low, c.high, c.unit)).collect();
+                    println!("{}: {} ({}), explains {:.0} % of the held-out residual", d.object, f.effect, coefficients.join(", "), f.explained_fraction * 100.0);
+                }
+            }
+            println!("wrote {0}/residuals.csv and {0}/diagnosis.json", out.display());
         }
         Command::Import { what: ImportFormat::EmbodiedGaussians { dir, out, config_out, start, duration, max_rate } } => {
             let opts = pegs::import::embodied_gaussians::ImportOptions { start, duration, max_rate, progress: true };

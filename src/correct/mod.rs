@@ -124,6 +124,8 @@ pub struct CorrectStats {
     pub displaced: usize,
     /// Total visual force per shape (N), indexed by shape id.
     pub force: Vec<Vec3>,
+    /// Total visual torque per shape about its centroid (N m), indexed by shape id.
+    pub torque: Vec<Vec3>,
 }
 
 pub struct Corrector {
@@ -147,7 +149,7 @@ impl Corrector {
     /// Optimise the tracked objects' Gaussians against `views` and add the resulting visual
     /// forces to the world's particles (they act in the next predict step). `dt` is the tick.
     pub fn correct(&mut self, world: &mut World, views: &[View], dt: f32) -> Result<CorrectStats> {
-        let mut stats = CorrectStats { force: vec![Vec3::ZERO; world.shapes.len()], ..Default::default() };
+        let mut stats = CorrectStats { force: vec![Vec3::ZERO; world.shapes.len()], torque: vec![Vec3::ZERO; world.shapes.len()], ..Default::default() };
         let mut cloud = GaussianCloud::from_world(world);
         // Free: Gaussians bonded to particles of dynamic objects. Robot and scene only occlude.
         let free: Vec<usize> = (0..cloud.len())
@@ -258,6 +260,7 @@ impl Corrector {
         let mut forces = vec![Vec3::ZERO; world.particles.len()];
         // A particle's force follows the mean displacement of its Gaussians, so densifying the
         // appearance (more Gaussians per particle) does not scale the forces up.
+        let centroids: Vec<Vec3> = (0..world.shapes.len() as u32).map(|s| world.shape_centroid(s)).collect();
         let mut bonded = vec![0u32; world.particles.len()];
         for &i in &free {
             bonded[world.gaussians.parent[i] as usize] += 1;
@@ -275,7 +278,9 @@ impl Corrector {
             let p = world.gaussians.parent[i] as usize;
             let f = (c.gain * d + c.damping * rate) / bonded[p].max(1) as f32;
             forces[p] += f;
-            stats.force[world.particles.shape[p] as usize] += f;
+            let shape = world.particles.shape[p];
+            stats.force[shape as usize] += f;
+            stats.torque[shape as usize] += (world.particles.position[p] - centroids[shape as usize]).cross(f);
             stats.displaced += 1;
         }
         spread_over_rigid_bodies(world, &mut forces);

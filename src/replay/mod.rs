@@ -447,6 +447,9 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     let max_age = config.correct.max_image_age as f64;
     let progress = if opts.progress { indicatif::ProgressBar::new(ticks as u64) } else { indicatif::ProgressBar::hidden() };
     let mut loss_sum = 0.0f32;
+    // State, contacts and corrective wrench of every object per tick (what `diagnose` explains).
+    let mut residuals = crate::diagnose::log::ResidualLog::default();
+    let ground = config.physics.ground.enabled.then_some((config.physics.ground.normal.normalize_or(Vec3::Z), config.physics.ground.height));
     // Contact sheet: six moments spread over the recording.
     let sheet_ticks: Vec<usize> = (0..6).map(|i| 1 + i * ticks.saturating_sub(1) / 5).collect();
     let mut sheet = Vec::new();
@@ -483,9 +486,11 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
                 None => {}
             }
         }
-        if let Some(s) = tracker.tick(&views)? {
+        let stats = tracker.tick(&views)?;
+        if let Some(s) = &stats {
             loss_sum += s.loss_before;
         }
+        residuals.record(&tracker.scene.world, stats.as_ref(), ground, t, config.physics.dt);
         // Silhouettes of the corrected state against the images it was corrected with.
         let sheet_row = sheet_ticks.contains(&k);
         let mut row = Vec::new();
@@ -549,6 +554,13 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         std::fs::write(out.join("tracking_error.csv"), csv)?;
     }
     metrics.error_series = errors;
+    let mut csv = String::from(crate::diagnose::CSV_HEADER);
+    csv.push('\n');
+    for sample in &residuals.samples {
+        csv += &sample.csv_row();
+        csv.push('\n');
+    }
+    std::fs::write(out.join("residuals.csv"), csv)?;
     if !meters.is_empty() {
         let mut csv = String::from("t,object,camera,iou,visible_iou\n");
         for meter in &meters {
