@@ -181,12 +181,18 @@ pub fn build_scene(config: &Config, frames: &[FirstFrames], initial_joints: &[(S
             builder.set_gaussian_look(rope, object.particle_radius, 0.97);
             report.objects.insert(object.name.clone(), ObjectInit { particles: points.len(), gaussians: points.len(), mass_kg: object.mass, alignment: None, colour_fit: None, silhouette_fit: None });
         }
-        for object in config.scene.rgbd_objects.iter().filter(|o| !o.rope) {
+        let rigid: Vec<_> = config.scene.rgbd_objects.iter().filter(|o| !o.rope).collect();
+        let bar = if progress { indicatif::ProgressBar::new(rigid.len() as u64) } else { indicatif::ProgressBar::hidden() };
+        bar.set_style(indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+        for object in rigid {
+            bar.set_message(format!("building {} from RGB-D", object.name));
+            bar.inc(1);
             let (model, r) = rgbd::object_from_rgbd(&object.name, object.label, &rgbd, ground, object.particle_radius, 0.0, &config.render).with_context(|| format!("object '{}'", object.name))?;
             builder.add_rigid_model(&object.name, &model, object.mass / model.particles.len() as f32);
             report.objects.insert(object.name.clone(), ObjectInit { particles: model.particles.len(), gaussians: model.gaussians.len(), mass_kg: object.mass, alignment: None, colour_fit: Some(r.colour_fit.clone()), silhouette_fit: None });
             report.rgbd_objects.insert(object.name.clone(), r);
         }
+        bar.finish_and_clear();
     }
     let mut shapes = Vec::new();
     for object in &config.scene.objects {

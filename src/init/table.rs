@@ -169,6 +169,8 @@ pub fn fit_colours(cloud: &mut GaussianCloud, frames: &[FitFrame], steps: u32, l
     let needed = views.len().min(2);
     let fitted: Vec<bool> = visibility.iter().map(|v| v.iter().filter(|w| **w >= MIN_VISIBILITY).count() >= needed).collect();
     let bar = if progress { indicatif::ProgressBar::new(steps as u64 + 1) } else { indicatif::ProgressBar::hidden() };
+    bar.set_style(indicatif::ProgressStyle::with_template("fitting colours of {prefix} Gaussians [{bar:30}] {pos}/{len} {elapsed}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+    bar.set_prefix(cloud.len().to_string());
         let mut fit = ColourFit { gaussians: n, steps, ..Default::default() };
     for step in 0..=steps {
         for (i, c) in cloud.colour.iter_mut().enumerate() {
