@@ -43,10 +43,11 @@ fn on_mask(camera: &Camera, image: &[Vec3], points: &[Vec3], mask: &ColourMask) 
     hits as f32 / points.len() as f32
 }
 
-fn render_block(object: &pegs::init::ObjectModel, camera: &Camera, rotation_of: impl Fn(usize) -> Quat, colour_of: impl Fn(usize) -> Vec3) -> Vec<Vec3> {
+/// The object's Gaussians at its file pose, coloured by `colour_of`.
+fn block_cloud(object: &pegs::init::ObjectModel, colour_of: impl Fn(usize) -> Vec3) -> GaussianCloud {
     let mut cloud = GaussianCloud::default();
     for (i, g) in object.gaussians.iter().enumerate() {
-        let q = object.pose.rotation * rotation_of(i);
+        let q = object.pose.rotation * g.rotation;
         let s = g.scale;
         cloud.push(GaussianParams {
             mean: object.pose.transform_point(g.mean),
@@ -56,7 +57,11 @@ fn render_block(object: &pegs::init::ObjectModel, camera: &Camera, rotation_of: 
             colour: colour_of(i),
         });
     }
-    CpuRenderer::new(RenderSettings::default()).forward(&cloud, camera, Roi::full(camera)).colour
+    cloud
+}
+
+fn render_block(object: &pegs::init::ObjectModel, camera: &Camera, colour_of: impl Fn(usize) -> Vec3) -> Vec<Vec3> {
+    CpuRenderer::new(RenderSettings::default()).forward(&block_cloud(object, colour_of), camera, Roi::full(camera)).colour
 }
 
 #[test]
@@ -86,8 +91,11 @@ fn importer_conventions_put_the_block_on_its_orange_pixels() {
         // swapped to R,G,B and w,x,y,z quaternions than with the file's values taken literally.
         let pixels: Vec<usize> = (0..last.len()).filter(|&k| mask.contains(last[k])).collect();
         let err = |render: &[Vec3]| pixels.iter().map(|&k| (render[k] - last[k]).length_squared()).sum::<f32>() / pixels.len() as f32;
-        let right = render_block(&block, &cam.camera, |i| block.gaussians[i].rotation, |i| block.gaussians[i].colour);
-        let bgr = render_block(&block, &cam.camera, |i| block.gaussians[i].rotation, |i| { let c = block.gaussians[i].colour; Vec3::new(c.z, c.y, c.x) });
+        let right = render_block(&block, &cam.camera, |i| block.gaussians[i].colour);
+        let bgr = render_block(&block, &cam.camera, |i| {
+            let c = block.gaussians[i].colour;
+            Vec3::new(c.z, c.y, c.x)
+        });
         colour_errors.0 += err(&right);
         colour_errors.1 += err(&bgr);
     }
@@ -163,11 +171,7 @@ fn the_file_pose_silhouette_overlaps_the_last_frames_mask() {
     let mut ious = Vec::new();
     for cam in &cams {
         let last = frame(cam, cam.timestamps.len() - 1);
-        let mut cloud = GaussianCloud::default();
-        for g in &block.gaussians {
-            let q = block.pose.rotation * g.rotation;
-            cloud.push(GaussianParams { mean: block.pose.transform_point(g.mean), rotation: glam::Vec4::new(q.x, q.y, q.z, q.w), log_scale: Vec3::new(g.scale.x.ln(), g.scale.y.ln(), g.scale.z.ln()), opacity_logit: logit(g.opacity), colour: g.colour });
-        }
+        let cloud = block_cloud(&block, |i| block.gaussians[i].colour);
         let out = CpuRenderer::new(RenderSettings::default()).forward(&cloud, &cam.camera, Roi::full(&cam.camera));
         let silhouette: Vec<bool> = out.alpha.iter().map(|a| *a > 0.5).collect();
         ious.push(pegs::init::mask::iou(&silhouette, &mask.segment(&last, cam.camera.width, cam.camera.height)));

@@ -189,29 +189,24 @@ impl GaussianCloud {
 
     /// The world's Gaussians at the world's current state.
     pub fn from_world(world: &World) -> Self {
-        let (means, rotations) = world.gaussian_world_means();
+        Self::from_world_where(world, |_| true)
+    }
+
+    /// The world's Gaussians that `keep` selects (by index), at the world's current state; only
+    /// those are transformed.
+    pub fn from_world_where(world: &World, keep: impl Fn(usize) -> bool) -> Self {
         let g = &world.gaussians;
         let mut cloud = GaussianCloud::default();
-        for i in 0..g.len() {
-            let q = rotations[i];
+        for i in (0..g.len()).filter(|&i| keep(i)) {
+            let (mean, q) = world.gaussian_world_pose(i);
             cloud.push(GaussianParams {
-                mean: means[i],
+                mean,
                 rotation: Vec4::new(q.x, q.y, q.z, q.w),
                 log_scale: Vec3::new(g.scale[i].x.ln(), g.scale[i].y.ln(), g.scale[i].z.ln()),
                 opacity_logit: logit(g.opacity[i]),
                 colour: g.colour[i],
             });
         }
-        cloud
-    }
-}
-
-impl GaussianCloud {
-    /// The world's Gaussians that `keep` selects (by index), at the world's current state.
-    pub fn from_world_where(world: &World, keep: impl Fn(usize) -> bool) -> Self {
-        let full = Self::from_world(world);
-        let mut cloud = Self::default();
-        (0..full.len()).filter(|&i| keep(i)).for_each(|i| cloud.push(full.get(i)));
         cloud
     }
 

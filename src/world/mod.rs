@@ -49,21 +49,19 @@ impl World {
 
     /// World-space means and rotations of all Gaussians (bonded ones follow their parent's frame).
     pub fn gaussian_world_means(&self) -> (Vec<Vec3>, Vec<Quat>) {
+        (0..self.gaussians.len()).map(|i| self.gaussian_world_pose(i)).unzip()
+    }
+
+    /// World-space mean and rotation of Gaussian `i` (a bonded one follows its parent's frame).
+    pub fn gaussian_world_pose(&self, i: usize) -> (Vec3, Quat) {
         let g = &self.gaussians;
-        let mut means = Vec::with_capacity(g.len());
-        let mut rots = Vec::with_capacity(g.len());
-        for i in 0..g.len() {
-            let parent = g.parent[i];
-            if parent == NO_PARENT {
-                means.push(g.local_mean[i]);
-                rots.push(g.local_rotation[i]);
-            } else {
+        match g.parent[i] {
+            NO_PARENT => (g.local_mean[i], g.local_rotation[i]),
+            parent => {
                 let frame = self.particle_frame(parent as usize);
-                means.push(frame.transform_point(g.local_mean[i]));
-                rots.push((frame.rotation * g.local_rotation[i]).normalize());
+                (frame.transform_point(g.local_mean[i]), (frame.rotation * g.local_rotation[i]).normalize())
             }
         }
-        (means, rots)
     }
 
     /// Bond world-space Gaussians to the closest particle among `candidates`, storing their mean
