@@ -379,3 +379,54 @@ mod tests {
         assert_eq!(c.physics.effects[1].parameters()[0], ("angle", 0.01));
     }
 }
+
+/// A model file: physical effects a diagnosis added to the base model (`pegs diagnose` writes
+/// it; `pegs replay --model` and the node load it on top of their configuration).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ModelFile {
+    /// What produced the file (free text).
+    pub source: String,
+    pub effects: Vec<Effect>,
+}
+
+impl ModelFile {
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read model file {}", path.display()))?;
+        let model: ModelFile = serde_yaml_ng::from_str(&text).with_context(|| format!("in model file {}", path.display()))?;
+        for e in &model.effects {
+            e.validate().with_context(|| format!("in model file {}", path.display()))?;
+        }
+        Ok(model)
+    }
+
+    pub fn save(&self, path: &Path) -> Result<()> {
+        std::fs::write(path, serde_yaml_ng::to_string(self)?).with_context(|| format!("cannot write {}", path.display()))
+    }
+
+    /// `config` with this file's effects added to its physics.
+    pub fn apply(&self, config: &Config) -> Config {
+        let mut c = config.clone();
+        c.physics.effects.extend(self.effects.iter().cloned());
+        c
+    }
+}
+
+#[cfg(test)]
+mod model_file_tests {
+    use super::*;
+
+    #[test]
+    fn a_model_file_round_trips_and_adds_its_effects() {
+        let dir = std::env::temp_dir().join(format!("pegs-model-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("model.yaml");
+        let model = ModelFile { source: "test".into(), effects: vec![Effect::ViscousDrag { object: Some("box".into()), coefficient: 0.9 }] };
+        model.save(&path).unwrap();
+        assert_eq!(ModelFile::load(&path).unwrap(), model);
+        let config = model.apply(&Config::default());
+        assert_eq!(config.physics.effects, model.effects);
+        std::fs::write(&path, "effects:\n  - effect: viscous_drag\n    coefficient: -1.0\n").unwrap();
+        assert!(format!("{:#}", ModelFile::load(&path).unwrap_err()).contains("coefficient must be >= 0"));
+    }
+}

@@ -58,15 +58,22 @@ enum Command {
         /// Write the silhouette IoU table into this Markdown file between its real-iou markers.
         #[arg(long)]
         readme: Option<PathBuf>,
+        /// A model file from `pegs diagnose`: its effects are added to the configuration's physics.
+        #[arg(long)]
+        model: Option<PathBuf>,
     },
-    /// Replay a recording and name the physical effects that explain its corrective forces
-    /// (first steps of the diagnosis): DIR/residuals.csv and DIR/diagnosis.json.
+    /// Find the physics the model misses: locate where open-loop predictions fail, name the
+    /// effect that explains it with its parameter, rerun with it and compare. Writes
+    /// DIR/report.md, DIR/report.json, DIR/model.yaml (for `replay --model`), plots and both replays.
     Diagnose {
         recording: PathBuf,
         #[arg(long)]
         config: PathBuf,
         #[arg(long)]
         out: PathBuf,
+        /// Start from this model file's effects (e.g. a previous diagnosis).
+        #[arg(long)]
+        model: Option<PathBuf>,
     },
     /// Convert another project's recording layout into a pegs recording and replay configuration.
     Import {
@@ -136,6 +143,21 @@ fn parse_resolution(s: &str) -> Result<(u32, u32), String> {
 enum ScenarioCommand {
     /// List the scenarios.
     List,
+    /// Generate and diagnose the concealed-physics scenarios, check each diagnosis against the
+    /// hidden truth and print a Markdown table; with --readme, write it between the
+    /// concealed-table markers of that file. Fails if a scenario's diagnosis is wrong.
+    Concealed {
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, value_delimiter = ',')]
+        scenarios: Vec<String>,
+        #[arg(long, default_value_t = 320)]
+        width: u32,
+        #[arg(long, default_value_t = 180)]
+        height: u32,
+        #[arg(long)]
+        readme: Option<PathBuf>,
+    },
     /// Generate every scenario, replay each with --compare, and print a Markdown table of the
     /// tracking errors; with --readme, write it between the scenario-table markers of that file.
     Table {
@@ -157,8 +179,9 @@ enum ScenarioCommand {
         width: u32,
         #[arg(long, default_value_t = 360)]
         height: u32,
-        #[arg(long, default_value_t = 4.5)]
-        seconds: f64,
+        /// Recording length, s (default: the scenario's own, 4.5 s or 5.5 s for concealed ones).
+        #[arg(long)]
+        seconds: Option<f64>,
         /// Initial position error (m, along x) the replay config gives the tracker.
         #[arg(long, default_value_t = 0.01)]
         offset: f32,
@@ -277,8 +300,21 @@ fn main() -> Result<()> {
                 println!("updated {}", path.display());
             }
         }
+        Command::Scenario { what: ScenarioCommand::Concealed { out, scenarios, width, height, readme } } => {
+            let names: Vec<String> = if scenarios.is_empty() { pegs::scenario::concealed::NAMES.iter().map(|s| s.to_string()).collect() } else { scenarios };
+            let (verdicts, table) = pegs::scenario::concealed_table::run(&out, &names, width, height, true)?;
+            println!("{table}");
+            if let Some(path) = readme {
+                pegs::scenario::table::write_between(&path, pegs::scenario::concealed_table::START, pegs::scenario::concealed_table::END, &table)?;
+                println!("updated {}", path.display());
+            }
+            let failed: Vec<&str> = verdicts.iter().filter(|v| !v.passed()).map(|v| v.scenario.as_str()).collect();
+            if !failed.is_empty() {
+                anyhow::bail!("diagnosis wrong for: {}", failed.join(", "));
+            }
+        }
         Command::Scenario { what: ScenarioCommand::List } => {
-            for n in pegs::scenario::NAMES {
+            for n in pegs::scenario::all_names() {
                 println!("{n:<20} {}", pegs::scenario::description(n));
             }
         }
@@ -286,7 +322,7 @@ fn main() -> Result<()> {
             let opts = pegs::scenario::generate::GenerateOptions {
                 width,
                 height,
-                seconds,
+                seconds: seconds.unwrap_or_else(|| pegs::scenario::seconds(&name)),
                 offset_position: glam::Vec3::new(offset, 0.0, 0.0),
                 offset_yaw: offset_yaw_deg.to_radians(),
                 ..Default::default()
@@ -305,9 +341,14 @@ fn main() -> Result<()> {
                 println!("updated {}", path.display());
             }
         }
-        Command::Replay { recording, config, out, no_visual_forces, no_physics, compare, cameras, readme } => {
-            let config = Config::load(&config)?;
-            let opts = pegs::replay::ReplayOptions { visual_forces: !no_visual_forces, physics: !no_physics, progress: true, max_cameras: cameras };
+        Command::Replay { recording, config, out, no_visual_forces, no_physics, compare, cameras, readme, model } => {
+            let mut config = Config::load(&config)?;
+            if let Some(path) = model {
+                let model = pegs::config::ModelFile::load(&path)?;
+                println!("model {}: {} effect(s) added", path.display(), model.effects.len());
+                config = model.apply(&config);
+            }
+            let opts = pegs::replay::ReplayOptions { visual_forces: !no_visual_forces, physics: !no_physics, max_cameras: cameras, ..Default::default() };
             let m = if compare { pegs::replay::run_compare(&recording, &config, &out, true)? } else { pegs::replay::run(&recording, &config, &out, opts)? };
             println!("replayed {} ticks ({:.1} s) from cameras {:?} [{}], {:.1} ms per tick", m.ticks, m.seconds, m.cameras, m.mode, m.wall_ms_per_tick);
             for (object, e) in &m.tracking_error {
@@ -334,19 +375,21 @@ fn main() -> Result<()> {
                 println!("updated {}", path.display());
             }
         }
-        Command::Diagnose { recording, config, out } => {
-            let config = Config::load(&config)?;
-            for d in pegs::diagnose::name_effects(&recording, &config, &out, true)? {
-                let s = &d.selection;
-                if s.found.is_empty() {
-                    println!("{}: no significant missing physics (held-out residual {:.3} N rms)", d.object, s.heldout_rms_before);
-                }
-                for f in &s.found {
-                    let coefficients: Vec<String> = f.coefficients.iter().map(|c| format!("{} {:.4} [{:.4}, {:.4}] {}", c.name, c.value, c.low, c.high, c.unit)).collect();
-                    println!("{}: {} ({}), explains {:.0} % of the held-out residual", d.object, f.effect, coefficients.join(", "), f.explained_fraction * 100.0);
-                }
+        Command::Diagnose { recording, config, out, model } => {
+            let mut config = Config::load(&config)?;
+            if let Some(path) = model {
+                config = pegs::config::ModelFile::load(&path)?.apply(&config);
             }
-            println!("wrote {0}/residuals.csv and {0}/diagnosis.json", out.display());
+            let report = pegs::diagnose::diagnose(&recording, &config, &out, pegs::diagnose::DiagnoseOptions::default())?;
+            for o in &report.objects {
+                if o.effect == "none" {
+                    println!("{}: no significant missing physics ({} mismatch windows)", o.object, o.mismatch.len());
+                    continue;
+                }
+                let params: Vec<String> = o.parameters.iter().map(|p| format!("{} {:.4} {}", p.name, p.value, p.unit)).collect();
+                println!("{}: {} ({}); held-out 1 s prediction error {:.1} -> {:.1} mm", o.object, o.effect, params.join(", "), o.before.open_loop_error_mm, o.after.open_loop_error_mm);
+            }
+            println!("wrote {0}/report.md, {0}/report.json and {0}/model.yaml", out.display());
         }
         Command::Import { what: ImportFormat::EmbodiedGaussians { dir, out, config_out, start, duration, max_rate } } => {
             let opts = pegs::import::embodied_gaussians::ImportOptions { start, duration, max_rate, progress: true };

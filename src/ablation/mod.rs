@@ -5,7 +5,7 @@
 //!
 //! Owns only the sweep's bookkeeping; the tracking itself is `replay::run`, unchanged.
 
-mod plot;
+pub mod plot;
 
 use crate::config::Config;
 use crate::replay::{self, ReplayOptions};

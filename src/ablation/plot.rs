@@ -7,9 +7,9 @@ use plotters::style::{FontStyle, register_font};
 use std::path::Path;
 use std::sync::Once;
 
-const FONT: &str = "sans-serif";
+pub const FONT: &str = "sans-serif";
 
-fn ensure_font() {
+pub fn ensure_font() {
     static REGISTER: Once = Once::new();
     REGISTER.call_once(|| {
         // Fails only if the bundled font does not parse; text is then left out, never a panic.

@@ -2,13 +2,23 @@
 //! physics failed to predict; logged per object and tick together with the object's state, it is
 //! a residual that candidate physical effects try to explain.
 //!
-//! This module owns the residual samples (`Sample`, written by replay as `residuals.csv`), the
-//! library of candidate effects (`candidates`) and their selection by sparse regression with
-//! held-out validation (`select`). It reads replays; it never steps physics itself.
+//! The pipeline (`diagnose`): replay with the current model, keeping the tracked states
+//! (`trace`) and the residuals (`Sample`, `residuals.csv`); locate where open-loop predictions
+//! fail (`locate`); explain the corrective forces by sparse regression over candidate effects
+//! with held-out validation (`candidates`, `select`); fit each candidate family's physical
+//! parameter by open-loop simulation and name the one that cuts the held-out prediction error
+//! (`refit`); rerun with the augmented model and report before / after (`report`, `plots`).
+//! Diagnose never changes the tracker; it only replays with different physics.
 
 pub mod candidates;
+pub mod locate;
 pub mod log;
+mod pipeline;
+pub mod plots;
+pub mod refit;
+pub mod report;
 pub mod select;
+pub mod trace;
 
 use glam::Vec3;
 use serde::Serialize;
@@ -125,29 +135,4 @@ pub fn read_residuals(path: &std::path::Path) -> anyhow::Result<Vec<Sample>> {
     lines.enumerate().map(|(n, l)| Sample::from_csv_row(l).with_context(|| format!("{}:{}: malformed row", path.display(), n + 2))).collect()
 }
 
-/// The first step of a diagnosis: per object, the effects that explain its corrective forces.
-#[derive(Clone, Debug, Serialize)]
-pub struct ObjectDiagnosis {
-    pub object: String,
-    pub selection: select::Selection,
-}
-
-/// Replay `recording` with `config` into `out` (which gets `residuals.csv`) and name, per object,
-/// the candidate effects that explain the corrective forces; writes `out/diagnosis.json`.
-pub fn name_effects(recording: &std::path::Path, config: &crate::config::Config, out: &std::path::Path, progress: bool) -> anyhow::Result<Vec<ObjectDiagnosis>> {
-    crate::replay::run(recording, config, out, crate::replay::ReplayOptions { progress, ..Default::default() })?;
-    let samples = read_residuals(&out.join("residuals.csv"))?;
-    let mut objects: Vec<String> = samples.iter().map(|s| s.object.clone()).collect();
-    objects.dedup();
-    objects.sort();
-    objects.dedup();
-    let result: Vec<ObjectDiagnosis> = objects
-        .into_iter()
-        .map(|object| {
-            let mine: Vec<Sample> = samples.iter().filter(|s| s.object == object).cloned().collect();
-            ObjectDiagnosis { selection: select::select(&mine, &candidates::ALL, select::SelectOptions::default()), object }
-        })
-        .collect();
-    std::fs::write(out.join("diagnosis.json"), serde_json::to_string_pretty(&result)?)?;
-    Ok(result)
-}
+pub use pipeline::{DiagnoseOptions, diagnose};

@@ -31,11 +31,13 @@ pub struct ReplayOptions {
     pub progress: bool,
     /// Use only the first N cameras (sorted by name); all when None.
     pub max_cameras: Option<usize>,
+    /// Keep every tracked state in `Metrics::trace` (for open-loop predictions).
+    pub capture: bool,
 }
 
 impl Default for ReplayOptions {
     fn default() -> Self {
-        Self { visual_forces: true, physics: true, progress: true, max_cameras: None }
+        Self { visual_forces: true, physics: true, progress: true, max_cameras: None, capture: false }
     }
 }
 
@@ -74,6 +76,9 @@ pub struct Metrics {
     /// With `--compare`: the same recording replayed physics-only and visual-forces-only.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub comparison: BTreeMap<String, Comparison>,
+    /// With `ReplayOptions::capture`: the tracked states, for open-loop predictions.
+    #[serde(skip)]
+    pub trace: Option<crate::diagnose::trace::Trace>,
 }
 
 /// Mean tracking errors of the ablated runs and this run's error as a fraction of theirs.
@@ -403,6 +408,13 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     let t_end = streams.images.iter().filter_map(|s| s.last().map(|f| f.0)).fold(f64::NEG_INFINITY, f64::max);
     scene.world.time = t0;
     let mut tracker = Tracker::new(scene, &config, opts.visual_forces)?;
+    use crate::diagnose::trace::{State, Trace};
+    let mut trace = opts.capture.then(|| Trace {
+        base: tracker.scene.world.clone(),
+        physics: config.physics.clone(),
+        robot: tracker.scene.robot.clone(),
+        states: vec![State::of(&tracker.scene.world)],
+    });
     let mut meters: Vec<SilhouetteMeter> = if config.scene.scenario.is_none() {
         config
             .scene
@@ -491,6 +503,9 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
             loss_sum += s.loss_before;
         }
         residuals.record(&tracker.scene.world, stats.as_ref(), ground, t, config.physics.dt);
+        if let Some(trace) = &mut trace {
+            trace.states.push(State::of(&tracker.scene.world));
+        }
         // Silhouettes of the corrected state against the images it was corrected with.
         let sheet_row = sheet_ticks.contains(&k);
         let mut row = Vec::new();
@@ -577,6 +592,7 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         silhouette::write_contact_sheet(&out.join("contact_sheet.png"), &sheet)?;
     }
     std::fs::write(out.join("metrics.json"), serde_json::to_string_pretty(&metrics)?)?;
+    metrics.trace = trace;
     Ok(metrics)
 }
 

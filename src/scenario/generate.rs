@@ -2,7 +2,7 @@
 //! with sensor noise and exposure drift, and write a recording (MCAP: images, camera info,
 //! /tf_static, joint states), the ground truth (CSV of object poses) and a replay config.
 
-use super::{build, cameras, observe, observe_depth_and_labels, truth_config};
+use super::{build, cameras, model_config, observe, observe_depth_and_labels, truth_config};
 use crate::config::{Config, SceneConfig};
 use crate::math::Pose;
 use crate::msgs::{self, JointState, Time};
@@ -36,7 +36,7 @@ pub fn camera_name(k: usize) -> String {
 
 pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let config = Config::default();
+    let config = model_config(name);
     let mut truth = Tracker::new(build(name, Pose::IDENTITY)?, &truth_config(name), false)?;
     let cams = cameras(name, opts.width, opts.height);
     let mut rec = RecordingWriter::create(&out.join("recording.mcap"))?;
@@ -87,7 +87,7 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
     rec.finish()?;
     gt.finish()?;
     gt_particles.finish()?;
-    let replay_config = Config { scene: SceneConfig { scenario: Some(name.to_string()), offset_position: opts.offset_position, offset_yaw: opts.offset_yaw, ..Default::default() }, ..Config::default() };
+    let replay_config = Config { scene: SceneConfig { scenario: Some(name.to_string()), offset_position: opts.offset_position, offset_yaw: opts.offset_yaw, ..Default::default() }, ..config };
     std::fs::write(out.join("config.yaml"), replay_config.to_yaml()?)?;
     Ok(())
 }

@@ -15,15 +15,28 @@ use crate::physics::Effect;
 use crate::world::ShapeId;
 use anyhow::{Context, Result, bail};
 
+pub mod concealed;
+pub mod concealed_table;
 pub mod generate;
 pub mod table;
 use glam::{DVec3, Quat, Vec3, Vec4};
 
 pub const NAMES: [&str; 7] = ["resting_box", "pushed_box", "pushed_tblock", "tblock_pushed_over", "two_boxes", "dragged_rope", "hidden_box"];
 
+/// Every scenario `generate` knows: the tracking scenarios, then the concealed-physics ones.
+pub fn all_names() -> impl Iterator<Item = &'static str> {
+    NAMES.into_iter().chain(concealed::NAMES)
+}
+
+/// The natural length of scenario `name`'s recording, s.
+pub fn seconds(name: &str) -> f64 {
+    if name.starts_with("concealed_") { concealed::SECONDS } else { 4.5 }
+}
+
 /// What each scenario shows, for listings and the README table.
 pub fn description(name: &str) -> &'static str {
     match name {
+        n if n.starts_with("concealed_") => concealed::description(n),
         "resting_box" => "a box at rest; the robot stays away",
         "pushed_box" => "the rod pushes a box 15 cm",
         "pushed_tblock" => "the rod pushes the T-block 15 cm, turning it",
@@ -48,7 +61,10 @@ pub fn object_names(name: &str) -> &'static [&'static str] {
 /// The configuration of the scenario's true world: pegs' defaults plus the effects the tracker's
 /// model does not have.
 pub fn truth_config(name: &str) -> Config {
-    let mut config = Config::default();
+    let mut config = model_config(name);
+    if name.starts_with("concealed_") {
+        config.physics.effects = concealed::truth(name).effects;
+    }
     if name == "hidden_box" {
         // A hidden string drags the box along +y at about 1.7 cm/s (a pull above static friction,
         // balanced by drag), so while the hand hides it the model's prediction goes stale.
@@ -58,6 +74,12 @@ pub fn truth_config(name: &str) -> Config {
         ];
     }
     config
+}
+
+/// The configuration the tracker of scenario `name` starts from: pegs' defaults, or the slippery
+/// table of the concealed scenarios.
+pub fn model_config(name: &str) -> Config {
+    if name.starts_with("concealed_") { concealed::model_config() } else { Config::default() }
 }
 
 /// Particle radius and mass of scenario objects.
@@ -118,6 +140,9 @@ const BOX_Z: f32 = R + 2.0 * 2.0 * R;
 
 /// Build scenario `name`'s world with the object placed `offset` away from its true start.
 pub fn build(name: &str, offset: Pose) -> Result<Scene> {
+    if name.starts_with("concealed_") && concealed::NAMES.contains(&name) {
+        return concealed::build(name, offset);
+    }
     let mut b = WorldBuilder::new();
     add_table(&mut b);
     let model = builtin::panda_pusher()?;
@@ -159,7 +184,7 @@ pub fn build(name: &str, offset: Pose) -> Result<Scene> {
             // The hand comes in between the cameras and the box, follows it, and leaves.
             vec![(0.0, tip(0.2, 0.4, 0.3)), (1.0, tip(0.36, -0.11, 0.12)), (2.4, tip(0.36, -0.08, 0.12)), (3.0, tip(0.2, 0.4, 0.3))]
         }
-        other => bail!("unknown scenario '{other}' (known: {})", NAMES.join(", ")),
+        other => bail!("unknown scenario '{other}' (known: {})", all_names().collect::<Vec<_>>().join(", ")),
     };
     let trajectory = pusher_trajectory(&model, &waypoints, 30.0)?;
     let q0 = trajectory.at(0.0).context("empty trajectory")?;

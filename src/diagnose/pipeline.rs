@@ -1,0 +1,252 @@
+//! `pegs diagnose`: locate, name, model, show (see the module docs).
+
+use super::locate::{self, Located};
+use super::refit::{self, Family, Fit, Setting};
+use super::report::{ObjectReport, Outcome, Parameter, Report};
+use super::select::{self, SelectOptions};
+use super::trace::{Prediction, Trace};
+use super::{Sample, candidates, plots, read_residuals};
+use crate::config::{Config, ModelFile};
+use crate::replay::{self, Metrics, ReplayOptions};
+use crate::world::ShapeId;
+use anyhow::{Context, Result};
+use glam::Vec2;
+use std::path::Path;
+
+#[derive(Clone, Copy, Debug)]
+pub struct DiagnoseOptions {
+    /// Open-loop prediction horizon, s.
+    pub horizon: f64,
+    /// Fraction of the recording (in time) used for fitting; the rest is held out.
+    pub train_fraction: f64,
+    /// A family is named only if it removes at least this fraction of the squared open-loop
+    /// error on both the fitting and the held-out windows.
+    pub min_gain: f64,
+    /// Seconds at the start while tracking converges onto the start pose; not used.
+    pub settle: f64,
+    pub progress: bool,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        Self { horizon: 1.0, train_fraction: 0.7, min_gain: 0.3, settle: 0.5, progress: true }
+    }
+}
+
+/// Windows start every this many ticks.
+const WINDOW_STRIDE: usize = 6;
+/// A window counts only if the object moves (tracked or predicted) at least this far in it, m.
+const ACTIVE_MOTION: f32 = 0.005;
+
+/// Replay `recording` with `config`, find what physics the model misses and write `out/report.md`,
+/// `out/report.json`, `out/model.yaml`, plots and the replays (`out/before`, `out/after`).
+pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOptions) -> Result<Report> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let say = |s: String| {
+        if opts.progress {
+            eprintln!("{s}");
+        }
+    };
+    say("replaying with the current model".into());
+    let before = replay::run(recording, config, &out.join("before"), ReplayOptions { progress: opts.progress, capture: true, ..Default::default() })?;
+    let trace = before.trace.as_ref().context("replay kept no trace")?;
+    let samples = read_residuals(&out.join("before").join("residuals.csv"))?;
+    let horizon = (opts.horizon / trace.dt()).round().max(1.0) as usize;
+    let t_first = trace.states.first().map_or(0.0, |s| s.time);
+    let t_last = trace.states.last().map_or(0.0, |s| s.time);
+    let cut = t_first + opts.train_fraction * (t_last - t_first);
+    let shapes: Vec<ShapeId> = trace.base.shapes.dynamic_ids().collect();
+    let mut studies = Vec::new();
+    let mut effects = Vec::new();
+    for &shape in &shapes {
+        let name = trace.base.shapes.name[shape as usize].clone();
+        let mine: Vec<Sample> = samples.iter().filter(|s| s.object == name).cloned().collect();
+        say(format!("{name}: locating mismatches"));
+        let located = locate::locate(trace, &trace.physics, shape, &mine, opts.settle)?;
+        // Fitting windows end before the cut; held-out ones start after it; both only where the
+        // object moves.
+        let last = trace.states.len().saturating_sub(horizon + 1);
+        let all: Vec<usize> = (0..=last).step_by(WINDOW_STRIDE).filter(|&k| trace.states[k].time >= t_first + opts.settle).collect();
+        let base = trace.predict(&trace.physics, shape, &all, horizon)?;
+        let active = |p: &Prediction| {
+            let c0 = trace.centroid(shape, p.start);
+            let tracked = (p.start..=p.start + horizon).map(|k| trace.centroid(shape, k).distance(c0)).fold(0.0, f32::max);
+            let predicted = p.path.iter().map(|q| q.distance(c0)).fold(0.0, f32::max);
+            tracked.max(predicted) > ACTIVE_MOTION
+        };
+        let time = |k: usize| trace.states[k].time;
+        let base_train: Vec<Prediction> = base.iter().filter(|p| time(p.start + horizon) <= cut + 1e-9 && active(p)).cloned().collect();
+        let base_heldout: Vec<Prediction> = base.iter().filter(|p| time(p.start) >= cut - 1e-9 && active(p)).cloned().collect();
+        let train: Vec<usize> = base_train.iter().map(|p| p.start).collect();
+        let heldout: Vec<usize> = base_heldout.iter().map(|p| p.start).collect();
+        let (force_direction, anchor) = refit::directions(trace, shape, &base_train);
+        let region = located.windows.iter().map(|w| w.region()).reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)));
+        let setting = Setting {
+            object: name.clone(),
+            shape,
+            mass: trace.base.shapes.mass[shape as usize],
+            base: trace.physics.clone(),
+            force_direction,
+            anchor,
+            region,
+            com_limit: refit::com_limits(trace, shape),
+        };
+        let mut fits: Vec<Fit> = Vec::new();
+        if !train.is_empty() && !heldout.is_empty() {
+            for family in refit::ALL {
+                say(format!("{name}: fitting {} open loop", family.name()));
+                if let Some(f) = refit::fit(trace, &setting, family, &train, &heldout, horizon, &base_train, &base_heldout)? {
+                    fits.push(f);
+                }
+            }
+        }
+        fits.sort_by(|a, b| b.heldout_gain().total_cmp(&a.heldout_gain()));
+        let chosen = fits.iter().find(|f| !located.windows.is_empty() && f.train_gain() >= opts.min_gain && f.heldout_gain() >= opts.min_gain).cloned();
+        if let Some(e) = chosen.as_ref().and_then(|f| f.effect_term.clone()) {
+            effects.push(e);
+        }
+        let regression = select::select(&mine, &candidates::ALL, SelectOptions { train_fraction: opts.train_fraction, ..Default::default() });
+        studies.push(Study { shape, name, samples: mine, located, train, heldout, setting, fits, chosen, regression, base_heldout });
+    }
+    let model = ModelFile { source: format!("pegs diagnose {}", recording.display()), effects };
+    let model_path = out.join("model.yaml");
+    model.save(&model_path)?;
+    // Show: replay again with the augmented model.
+    let after = if model.effects.is_empty() {
+        None
+    } else {
+        say(format!("replaying with the augmented model ({} effect(s))", model.effects.len()));
+        Some(replay::run(recording, &model.apply(config), &out.join("after"), ReplayOptions { progress: opts.progress, capture: true, ..Default::default() })?)
+    };
+    let after_samples = match &after {
+        Some(_) => read_residuals(&out.join("after").join("residuals.csv"))?,
+        None => samples.clone(),
+    };
+    let mut objects = Vec::new();
+    for study in studies {
+        let outcome_before = outcome(trace, &study.base_heldout, &study.samples, &before, &study.name, cut);
+        let (outcome_after, after_heldout) = match &after {
+            Some(run) => {
+                let t = run.trace.as_ref().context("replay kept no trace")?;
+                let p = t.predict(&t.physics, study.shape, &study.heldout, horizon)?;
+                let mine: Vec<Sample> = after_samples.iter().filter(|s| s.object == study.name).cloned().collect();
+                (outcome(t, &p, &mine, run, &study.name, cut), p)
+            }
+            None => (outcome_before.clone(), study.base_heldout.clone()),
+        };
+        let mut csv = String::from("t,error_mm\n");
+        for (t, e) in &study.located.errors {
+            csv += &format!("{t:.4},{:.3}\n", e * 1e3);
+        }
+        std::fs::write(out.join(format!("{}_short_horizon_errors.csv", study.name)), csv)?;
+        let stem = out.join(&study.name);
+        plots::residual_over_time(&stem.with_file_name(format!("{}_residual.png", study.name)), &study.samples, &study.located, cut)?;
+        plots::residual_vs_feature(&stem.with_file_name(format!("{}_feature.png", study.name)), &study.samples, study.chosen.as_ref().and_then(|f| f.family), &study.setting)?;
+        plots::paths(&stem.with_file_name(format!("{}_paths.png", study.name)), trace, study.shape, cut, &study.base_heldout, &after_heldout)?;
+        objects.push(object_report(study, outcome_before, outcome_after, cut, opts.train_fraction));
+    }
+    let report = Report::new(recording.display().to_string(), model_path.display().to_string(), objects);
+    std::fs::write(out.join("report.json"), serde_json::to_string_pretty(&report)?)?;
+    std::fs::write(out.join("report.md"), report.markdown())?;
+    Ok(report)
+}
+
+struct Study {
+    shape: ShapeId,
+    name: String,
+    samples: Vec<Sample>,
+    located: Located,
+    train: Vec<usize>,
+    heldout: Vec<usize>,
+    setting: Setting,
+    fits: Vec<Fit>,
+    chosen: Option<Fit>,
+    regression: select::Selection,
+    base_heldout: Vec<Prediction>,
+}
+
+/// Held-out metrics of one replay: open-loop error of `predictions`, mean corrective force of the
+/// object's samples after `cut`, tracking error after `cut` if there is ground truth.
+fn outcome(_trace: &Trace, predictions: &[Prediction], samples: &[Sample], run: &Metrics, object: &str, cut: f64) -> Outcome {
+    let held: Vec<&Sample> = samples.iter().filter(|s| s.t >= cut).collect();
+    let tracking: Option<Vec<f32>> = run.error_series.get(object).map(|s| s.iter().filter(|e| e.0 >= cut).map(|e| e.1).collect());
+    Outcome {
+        open_loop_error_mm: predictions.iter().map(|p| p.error).sum::<f32>() / predictions.len().max(1) as f32 * 1e3,
+        open_loop_windows: predictions.len(),
+        corrective_effort_n: held.iter().map(|s| s.force.length()).sum::<f32>() / held.len().max(1) as f32,
+        tracking_error_mm: tracking.filter(|e| !e.is_empty()).map(|e| e.iter().sum::<f32>() / e.len() as f32 * 1e3),
+    }
+}
+
+/// The regression candidate that matches a simulation family, if any.
+fn regression_counterpart(family: Family) -> Option<candidates::Candidate> {
+    use candidates::Candidate as C;
+    match family {
+        Family::ViscousDrag => Some(C::ViscousDrag),
+        Family::GroundFriction | Family::FrictionPatch => Some(C::GroundFriction),
+        Family::ConstantForce => Some(C::ConstantForce),
+        Family::Spring => Some(C::Spring),
+        Family::MassScale => Some(C::MassError),
+        Family::AngularDamping => Some(C::AngularDamping),
+        Family::CenterOfMass(_) => None,
+    }
+}
+
+fn object_report(study: Study, before: Outcome, after: Outcome, cut: f64, train_fraction: f64) -> ObjectReport {
+    let mut parameters = Vec::new();
+    let mut residual_explained_fraction = None;
+    if let Some(f) = &study.chosen {
+        parameters.push(Parameter { name: f.parameter.clone(), value: f.value, low: Some(f.low), high: Some(f.high), unit: f.unit.clone() });
+        let s = &study.setting;
+        let fixed = |name: &str, value: f32, unit: &str| Parameter { name: name.into(), value, low: None, high: None, unit: unit.into() };
+        match f.family {
+            Some(Family::ConstantForce) => {
+                if let Some(d) = s.force_direction {
+                    parameters.push(fixed("direction_x", d.x, ""));
+                    parameters.push(fixed("direction_y", d.y, ""));
+                }
+                // The same force from a tilted table: m g sin(angle).
+                let ratio = (f.value / (s.mass * 9.81)).clamp(-1.0, 1.0);
+                parameters.push(fixed("equivalent_tilt", ratio.asin().to_degrees(), "deg"));
+            }
+            Some(Family::Spring) => {
+                if let Some(a) = s.anchor {
+                    parameters.push(fixed("anchor_x", a.x, "m"));
+                    parameters.push(fixed("anchor_y", a.y, "m"));
+                }
+            }
+            Some(Family::FrictionPatch) => {
+                if let Some((lo, hi)) = s.region {
+                    let (c, h): (Vec2, Vec2) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+                    for (n, v) in [("center_x", c.x), ("center_y", c.y), ("half_size_x", h.x), ("half_size_y", h.y)] {
+                        parameters.push(fixed(n, v, "m"));
+                    }
+                }
+            }
+            Some(Family::CenterOfMass(axis)) => parameters.push(fixed("body_axis", axis as f32, "0 = x, 1 = y")),
+            _ => {}
+        }
+        if let Some(c) = f.family.and_then(regression_counterpart) {
+            let single = select::select(&study.samples, &[c], SelectOptions { train_fraction, min_gain: f64::NEG_INFINITY, min_t: 0.0 });
+            residual_explained_fraction = single.found.first().map(|x| x.explained_fraction);
+        }
+    }
+    ObjectReport {
+        object: study.name,
+        locate_threshold_mm: study.located.threshold * 1e3,
+        // Deviations no effect explains are listed apart: they are not missing physics.
+        mismatch: if study.chosen.is_some() { study.located.windows.clone() } else { Vec::new() },
+        unexplained: if study.chosen.is_some() { Vec::new() } else { study.located.windows },
+        effect: study.chosen.as_ref().map_or("none".into(), |f| f.effect.clone()),
+        parameters,
+        explained_fraction: study.chosen.as_ref().map_or(0.0, |f| f.heldout_gain()),
+        residual_explained_fraction,
+        heldout_from: cut,
+        train_windows: study.train.len(),
+        heldout_windows: study.heldout.len(),
+        candidates: study.fits,
+        regression: study.regression,
+        before,
+        after,
+    }
+}

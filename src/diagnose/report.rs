@@ -1,0 +1,173 @@
+//! What a diagnosis found, as data (`report.json`) and as a page a person reads (`report.md`).
+
+use super::locate::Mismatch;
+use super::refit::Fit;
+use super::select::Selection;
+use serde::Serialize;
+use std::fmt::Write;
+
+/// How well a model does on the held-out part of the recording.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Outcome {
+    /// Mean distance (mm) between open-loop predictions and tracking one horizon (1 s) ahead.
+    pub open_loop_error_mm: f32,
+    pub open_loop_windows: usize,
+    /// Mean magnitude of the corrective (visual) force, N.
+    pub corrective_effort_n: f32,
+    /// Mean tracking error against ground truth, mm, when the recording has it.
+    pub tracking_error_mm: Option<f32>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Parameter {
+    pub name: String,
+    pub value: f32,
+    /// 95 % interval, for fitted parameters.
+    pub low: Option<f32>,
+    pub high: Option<f32>,
+    pub unit: String,
+}
+
+/// The diagnosis of one object.
+#[derive(Clone, Debug, Serialize)]
+pub struct ObjectReport {
+    pub object: String,
+    pub mismatch: Vec<Mismatch>,
+    /// Windows where predictions missed but no candidate effect explains it (contact transients,
+    /// tracking noise): listed, not counted as missing physics.
+    pub unexplained: Vec<Mismatch>,
+    /// Short-horizon error a prediction had to exceed to count as a mismatch, mm.
+    pub locate_threshold_mm: f32,
+    /// The named effect, or "none" (no significant missing physics).
+    pub effect: String,
+    pub parameters: Vec<Parameter>,
+    /// Fraction of the held-out open-loop squared error the named effect removes.
+    pub explained_fraction: f64,
+    /// Fraction of the held-out corrective force the same effect explains in the residual
+    /// regression, when it has a regression counterpart.
+    pub residual_explained_fraction: Option<f64>,
+    /// Held-out data starts here (s).
+    pub heldout_from: f64,
+    pub train_windows: usize,
+    pub heldout_windows: usize,
+    /// Every candidate family fitted, best held-out gain first.
+    pub candidates: Vec<Fit>,
+    /// The sparse regression of the corrective forces on the candidate effects.
+    pub regression: Selection,
+    pub before: Outcome,
+    pub after: Outcome,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub recording: String,
+    /// The model file written with the named effects.
+    pub model_file: String,
+    /// Every mismatch window of every object.
+    pub mismatch: Vec<Mismatch>,
+    /// The strongest finding (object, effect, parameters, explained fraction, before / after);
+    /// "none" when no object has missing physics.
+    pub object: String,
+    pub effect: String,
+    pub parameters: Vec<Parameter>,
+    pub explained_fraction: f64,
+    pub before: Outcome,
+    pub after: Outcome,
+    pub objects: Vec<ObjectReport>,
+}
+
+impl Report {
+    pub fn new(recording: String, model_file: String, objects: Vec<ObjectReport>) -> Self {
+        let main = objects.iter().filter(|o| o.effect != "none").max_by(|a, b| a.explained_fraction.total_cmp(&b.explained_fraction)).or(objects.first());
+        Report {
+            recording,
+            model_file,
+            mismatch: objects.iter().flat_map(|o| o.mismatch.iter().cloned()).collect(),
+            object: main.map_or(String::new(), |o| o.object.clone()),
+            effect: main.map_or("none".into(), |o| o.effect.clone()),
+            parameters: main.map_or(Vec::new(), |o| o.parameters.clone()),
+            explained_fraction: main.map_or(0.0, |o| o.explained_fraction),
+            before: main.map_or(Outcome::default(), |o| o.before.clone()),
+            after: main.map_or(Outcome::default(), |o| o.after.clone()),
+            objects,
+        }
+    }
+
+    pub fn markdown(&self) -> String {
+        let mut md = format!("# Diagnosis of {}\n\n", self.recording);
+        for o in &self.objects {
+            let _ = writeln!(md, "## {}\n", o.object);
+            if o.mismatch.is_empty() {
+                let _ = writeln!(
+                    md,
+                    "**Locate.** No systematic mismatch: {} short deviation(s) of open-loop predictions (0.2 s) beyond {:.1} mm, which no candidate effect explains.\n",
+                    o.unexplained.len(),
+                    o.locate_threshold_mm
+                );
+            } else {
+                let _ = writeln!(md, "**Locate.** Short open-loop predictions (0.2 s) miss the tracked object by more than {:.1} mm in:\n", o.locate_threshold_mm);
+                let _ = writeln!(md, "| from (s) | to (s) | region x (m) | region y (m) | phase | peak error (mm) |\n|---|---|---|---|---|---|");
+                for m in &o.mismatch {
+                    let _ = writeln!(
+                        md,
+                        "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {} | {:.1} |",
+                        m.t_start, m.t_end, m.region_min[0], m.region_max[0], m.region_min[1], m.region_max[1], m.phase, m.peak_error_mm
+                    );
+                }
+                md.push('\n');
+            }
+            if o.effect == "none" {
+                let _ = writeln!(md, "**Name.** No significant missing physics: no candidate effect cuts the held-out 1 s prediction error enough.\n");
+            } else {
+                let params: Vec<String> = o
+                    .parameters
+                    .iter()
+                    .map(|p| match (p.low, p.high) {
+                        (Some(l), Some(h)) => format!("{} = {:.4} {} (95 % interval {:.4} .. {:.4})", p.name, p.value, p.unit, l, h),
+                        _ => format!("{} = {:.4} {}", p.name, p.value, p.unit),
+                    })
+                    .collect();
+                let _ = writeln!(md, "**Name.** Missing effect: **{}**; {}.", o.effect, params.join("; "));
+                let _ = write!(md, "It removes {:.0} % of the held-out open-loop error", o.explained_fraction * 100.0);
+                if let Some(f) = o.residual_explained_fraction {
+                    let _ = write!(md, " and explains {:.0} % of the held-out corrective force", f * 100.0);
+                }
+                md.push_str(".\n\n");
+            }
+            let _ = writeln!(md, "Candidates (fitted open loop on {} windows before {:.2} s, judged on {} after):\n", o.train_windows, o.heldout_from, o.heldout_windows);
+            let _ = writeln!(md, "| effect | parameter | value | 95 % interval | fit gain | held-out gain |\n|---|---|---|---|---|---|");
+            for c in &o.candidates {
+                let _ = writeln!(
+                    md,
+                    "| {} | {} ({}) | {:.4} | {:.4} .. {:.4} | {:.0} % | {:.0} % |",
+                    c.effect,
+                    c.parameter,
+                    c.unit,
+                    c.value,
+                    c.low,
+                    c.high,
+                    c.train_gain() * 100.0,
+                    c.heldout_gain() * 100.0
+                );
+            }
+            let r = &o.regression;
+            let named: Vec<&str> = r.found.iter().map(|f| f.effect.as_str()).collect();
+            let _ = writeln!(
+                md,
+                "\nResidual regression (corrective force on candidate effects, held-out RMS {:.3} -> {:.3} N): {}.\n",
+                r.heldout_rms_before,
+                r.heldout_rms_after,
+                if named.is_empty() { "nothing significant".to_string() } else { named.join(", ") }
+            );
+            let _ = writeln!(md, "**Show.** Held-out part, before -> after:\n");
+            let _ = writeln!(md, "| metric | before | after |\n|---|---|---|");
+            let _ = writeln!(md, "| open-loop error at 1 s (mm) | {:.1} | {:.1} |", o.before.open_loop_error_mm, o.after.open_loop_error_mm);
+            let _ = writeln!(md, "| corrective effort (N) | {:.3} | {:.3} |", o.before.corrective_effort_n, o.after.corrective_effort_n);
+            if let (Some(b), Some(a)) = (o.before.tracking_error_mm, o.after.tracking_error_mm) {
+                let _ = writeln!(md, "| tracking error (mm) | {b:.1} | {a:.1} |");
+            }
+            let _ = writeln!(md, "\n![residual over time]({0}_residual.png)\n![residual vs feature]({0}_feature.png)\n![paths]({0}_paths.png)\n", o.object);
+        }
+        md
+    }
+}
