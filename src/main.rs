@@ -130,6 +130,15 @@ enum ImportFormat {
     },
 }
 
+/// The configuration at `config`, with the effects of the model file at `model` (if any) added.
+fn load_with_model(config: &std::path::Path, model: Option<&std::path::Path>) -> Result<Config> {
+    let config = Config::load(config)?;
+    let Some(path) = model else { return Ok(config) };
+    let model = pegs::config::ModelFile::load(path)?;
+    println!("model {}: {} effect(s) added", path.display(), model.effects.len());
+    Ok(model.apply(&config))
+}
+
 fn parse_resolution(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s.split_once('x').ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT"))?;
     let (w, h) = (w.parse::<u32>().map_err(|e| format!("{s}: {e}"))?, h.parse::<u32>().map_err(|e| format!("{s}: {e}"))?);
@@ -342,12 +351,7 @@ fn main() -> Result<()> {
             }
         }
         Command::Replay { recording, config, out, no_visual_forces, no_physics, compare, cameras, readme, model } => {
-            let mut config = Config::load(&config)?;
-            if let Some(path) = model {
-                let model = pegs::config::ModelFile::load(&path)?;
-                println!("model {}: {} effect(s) added", path.display(), model.effects.len());
-                config = model.apply(&config);
-            }
+            let config = load_with_model(&config, model.as_deref())?;
             let opts = pegs::replay::ReplayOptions { visual_forces: !no_visual_forces, physics: !no_physics, max_cameras: cameras, ..Default::default() };
             let m = if compare { pegs::replay::run_compare(&recording, &config, &out, true)? } else { pegs::replay::run(&recording, &config, &out, opts)? };
             println!("replayed {} ticks ({:.1} s) from cameras {:?} [{}], {:.1} ms per tick", m.ticks, m.seconds, m.cameras, m.mode, m.wall_ms_per_tick);
@@ -376,10 +380,7 @@ fn main() -> Result<()> {
             }
         }
         Command::Diagnose { recording, config, out, model } => {
-            let mut config = Config::load(&config)?;
-            if let Some(path) = model {
-                config = pegs::config::ModelFile::load(&path)?.apply(&config);
-            }
+            let config = load_with_model(&config, model.as_deref())?;
             let report = pegs::diagnose::diagnose(&recording, &config, &out, pegs::diagnose::DiagnoseOptions::default())?;
             for o in &report.objects {
                 if o.effect == "none" {

@@ -4,7 +4,7 @@ use super::locate::{self, Located};
 use super::refit::{self, Family, Fit, Setting};
 use super::report::{ObjectReport, Outcome, Parameter, Report};
 use super::select::{self, SelectOptions};
-use super::trace::{Prediction, Trace};
+use super::trace::Prediction;
 use super::{Sample, candidates, plots, read_residuals};
 use crate::config::{Config, ModelFile};
 use crate::replay::{self, Metrics, ReplayOptions};
@@ -124,13 +124,13 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
     };
     let mut objects = Vec::new();
     for study in studies {
-        let outcome_before = outcome(trace, &study.base_heldout, &study.samples, &before, &study.name, cut);
+        let outcome_before = outcome(&study.base_heldout, &study.samples, &before, &study.name, cut);
         let (outcome_after, after_heldout) = match &after {
             Some(run) => {
                 let t = run.trace.as_ref().context("replay kept no trace")?;
                 let p = t.predict(&t.physics, study.shape, &study.heldout, horizon)?;
                 let mine: Vec<Sample> = after_samples.iter().filter(|s| s.object == study.name).cloned().collect();
-                (outcome(t, &p, &mine, run, &study.name, cut), p)
+                (outcome(&p, &mine, run, &study.name, cut), p)
             }
             None => (outcome_before.clone(), study.base_heldout.clone()),
         };
@@ -139,10 +139,10 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
             csv += &format!("{t:.4},{:.3}\n", e * 1e3);
         }
         std::fs::write(out.join(format!("{}_short_horizon_errors.csv", study.name)), csv)?;
-        let stem = out.join(&study.name);
-        plots::residual_over_time(&stem.with_file_name(format!("{}_residual.png", study.name)), &study.samples, &study.located, cut)?;
-        plots::residual_vs_feature(&stem.with_file_name(format!("{}_feature.png", study.name)), &study.samples, study.chosen.as_ref().and_then(|f| f.family), &study.setting)?;
-        plots::paths(&stem.with_file_name(format!("{}_paths.png", study.name)), trace, study.shape, cut, &study.base_heldout, &after_heldout)?;
+        let plot = |kind: &str| out.join(format!("{}_{kind}.png", study.name));
+        plots::residual_over_time(&plot("residual"), &study.samples, &study.located, cut)?;
+        plots::residual_vs_feature(&plot("feature"), &study.samples, study.chosen.as_ref().and_then(|f| f.family), &study.setting)?;
+        plots::paths(&plot("paths"), trace, study.shape, cut, &study.base_heldout, &after_heldout)?;
         objects.push(object_report(study, outcome_before, outcome_after, cut, opts.train_fraction));
     }
     let report = Report::new(recording.display().to_string(), model_path.display().to_string(), objects);
@@ -167,7 +167,7 @@ struct Study {
 
 /// Held-out metrics of one replay: open-loop error of `predictions`, mean corrective force of the
 /// object's samples after `cut`, tracking error after `cut` if there is ground truth.
-fn outcome(_trace: &Trace, predictions: &[Prediction], samples: &[Sample], run: &Metrics, object: &str, cut: f64) -> Outcome {
+fn outcome(predictions: &[Prediction], samples: &[Sample], run: &Metrics, object: &str, cut: f64) -> Outcome {
     let held: Vec<&Sample> = samples.iter().filter(|s| s.t >= cut).collect();
     let tracking: Option<Vec<f32>> = run.error_series.get(object).map(|s| s.iter().filter(|e| e.0 >= cut).map(|e| e.1).collect());
     Outcome {

@@ -78,7 +78,7 @@ pub fn residual_over_time(path: &Path, samples: &[Sample], located: &Located, he
 }
 
 /// The feature a family's force depends on and the corrective force along that family's
-/// direction, per sample: (feature, force, axis labels).
+/// direction, per sample: (feature, force).
 fn feature(family: Option<Family>, setting: &Setting, s: &Sample) -> (f64, f64) {
     let v = Vec2::new(s.velocity.x, s.velocity.y);
     let f = Vec2::new(s.force.x, s.force.y);

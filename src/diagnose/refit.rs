@@ -307,45 +307,55 @@ pub fn com_limits(trace: &Trace, shape: ShapeId) -> [f32; 2] {
 /// error's direction (a constant force) and the anchor of the spring `e = a (anchor - x)` that
 /// fits them best, if it pulls (`a > 0`).
 pub fn directions(trace: &Trace, shape: ShapeId, base: &[Prediction]) -> (Option<Vec3>, Option<Vec3>) {
-    let mut rows: Vec<(Vec2, Vec2)> = Vec::new();
-    for p in base {
-        let end = p.start + p.path.len() - 1;
-        let tracked = trace.centroid(shape, end).truncate();
-        let predicted = p.path.last().copied().unwrap_or_default().truncate();
-        let mean_x = p.path.iter().map(|q| q.truncate()).sum::<Vec2>() / p.path.len().max(1) as f32;
-        rows.push((mean_x, tracked - predicted));
-    }
+    // Per window: the mean predicted position and the miss (tracked - predicted) at its end.
+    let rows: Vec<(Vec2, Vec2)> = base
+        .iter()
+        .map(|p| {
+            let end = p.start + p.path.len() - 1;
+            let predicted = p.path.last().copied().unwrap_or_default().truncate();
+            let mean_x = p.path.iter().map(|q| q.truncate()).sum::<Vec2>() / p.path.len().max(1) as f32;
+            (mean_x, trace.centroid(shape, end).truncate() - predicted)
+        })
+        .collect();
     let total: Vec2 = rows.iter().map(|r| r.1).sum();
     let force = (total.length() > 1e-6).then(|| total.normalize().extend(0.0));
-    // e = b - a x per component: unknowns (b_x, b_y, a).
-    let anchor = (|| {
-        let n = rows.len();
-        if n < 3 {
-            return None;
-        }
-        let x = nalgebra::DMatrix::from_fn(2 * n, 3, |i, j| {
-            let (p, _) = rows[i / 2];
-            let c = i % 2;
-            match j {
-                0 => (c == 0) as u8 as f64,
-                1 => (c == 1) as u8 as f64,
-                _ => -(p[c] as f64),
-            }
-        });
-        let y = nalgebra::DVector::from_fn(2 * n, |i, _| rows[i / 2].1[i % 2] as f64);
-        let beta = x.svd(true, true).solve(&y, 1e-12).ok()?;
-        let a = beta[2];
-        (a > 1e-6).then(|| {
-            let z = trace.centroid(shape, 0).z;
-            Vec3::new((beta[0] / a) as f32, (beta[1] / a) as f32, z)
-        })
-    })();
+    let anchor = spring_anchor(&rows).map(|a| a.extend(trace.centroid(shape, 0).z));
     (force, anchor)
+}
+
+/// Least squares of `miss = b - a x` (unknowns b_x, b_y, a) over `(x, miss)` rows; the anchor
+/// `b / a` if the fitted spring pulls.
+fn spring_anchor(rows: &[(Vec2, Vec2)]) -> Option<Vec2> {
+    let n = rows.len();
+    if n < 3 {
+        return None;
+    }
+    let x = nalgebra::DMatrix::from_fn(2 * n, 3, |i, j| {
+        let c = i % 2;
+        match j {
+            2 => -(rows[i / 2].0[c] as f64),
+            _ => (j == c) as u8 as f64,
+        }
+    });
+    let y = nalgebra::DVector::from_fn(2 * n, |i, _| rows[i / 2].1[i % 2] as f64);
+    let beta = x.svd(true, true).solve(&y, 1e-12).ok()?;
+    let a = beta[2];
+    (a > 1e-6).then(|| Vec2::new((beta[0] / a) as f32, (beta[1] / a) as f32))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_spring_anchor_is_recovered_from_misses_and_a_push_has_none() {
+        let anchor = Vec2::new(0.45, -0.2);
+        let pulls: Vec<(Vec2, Vec2)> = (0..8).map(|k| Vec2::new(0.5 + 0.01 * k as f32, -0.1 + 0.03 * k as f32)).map(|x| (x, 0.3 * (anchor - x))).collect();
+        let found = spring_anchor(&pulls).unwrap();
+        assert!(found.distance(anchor) < 1e-4, "{found}");
+        let pushes: Vec<(Vec2, Vec2)> = pulls.iter().map(|&(x, e)| (x, -e)).collect();
+        assert_eq!(spring_anchor(&pushes), None);
+    }
 
     #[test]
     fn the_bootstrap_interval_brackets_a_well_determined_minimum() {
