@@ -17,6 +17,7 @@ pub struct Config {
     pub render: crate::render::RenderSettings,
     pub correct: crate::correct::CorrectConfig,
     pub scene: SceneConfig,
+    pub node: crate::ros::NodeConfig,
 }
 
 /// Where the tracker's world comes from: a built-in scenario's world (with its tracked object
@@ -289,13 +290,18 @@ impl Config {
         } else {
             serde_yaml_ng::from_value(params.clone()).context("configuration does not match the expected fields")?
         };
-        let mut config = config;
-        config.physics.ground.normal = config.physics.ground.normal.normalize_or(Vec3::Z);
-        config.physics.validate()?;
-        config.robot.validate()?;
-        config.correct.validate()?;
-        config.scene.validate()?;
-        Ok(config)
+        config.validated()
+    }
+
+    /// This configuration checked field by field (the ground normal normalised).
+    pub fn validated(mut self) -> Result<Self> {
+        self.physics.ground.normal = self.physics.ground.normal.normalize_or(Vec3::Z);
+        self.physics.validate()?;
+        self.robot.validate()?;
+        self.correct.validate()?;
+        self.scene.validate()?;
+        self.node.validate()?;
+        Ok(self)
     }
 
     /// YAML in the ROS 2 parameter-file layout under the node name `pegs`.
@@ -314,7 +320,7 @@ impl Config {
 }
 
 /// The `ros__parameters` mapping of the first node in a ROS 2 parameter file, if it is one.
-fn ros_parameters(value: &serde_yaml_ng::Value) -> Option<&serde_yaml_ng::Value> {
+pub(crate) fn ros_parameters(value: &serde_yaml_ng::Value) -> Option<&serde_yaml_ng::Value> {
     let map = value.as_mapping()?;
     map.values().find_map(|node| node.as_mapping()?.get("ros__parameters"))
 }
@@ -328,6 +334,14 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/pegs.yaml");
         let c = Config::load(&path).expect("config/pegs.yaml must load");
         assert_eq!(c, Config::default(), "config/pegs.yaml documents the defaults; keep them equal");
+    }
+
+    #[test]
+    fn shipped_node_config_for_the_franka_rig_parses() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/franka_3xd455.yaml");
+        let c = Config::load(&path).expect("config/franka_3xd455.yaml must load");
+        assert_eq!(c.node.cameras.len(), 3);
+        assert!(c.robot.urdf.is_some());
     }
 
     #[test]

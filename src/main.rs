@@ -75,6 +75,25 @@ enum Command {
         #[arg(long)]
         model: Option<PathBuf>,
     },
+    /// Run as a ROS 2 node: subscribe to the cameras and /joint_states, track at the physics rate
+    /// and publish poses, particle clouds, debug images, /tf and /diagnostics. Configuration:
+    /// --config (or the defaults), then `--ros-args --params-file FILE -p name:=value ...`.
+    Node {
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// A model file from `pegs diagnose`: its effects are added to the physics.
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// Stop after this many seconds (default: run until SIGINT / SIGTERM).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Write run statistics (JSON: tick rate, overruns, latency, memory) here on exit.
+        #[arg(long)]
+        stats: Option<PathBuf>,
+        /// ROS arguments: --ros-args [-p name:=value] [--params-file FILE] [-r __node:=NAME].
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        ros_args: Vec<String>,
+    },
     /// Convert another project's recording layout into a pegs recording and replay configuration.
     Import {
         #[command(subcommand)]
@@ -349,6 +368,19 @@ fn main() -> Result<()> {
                 pegs::scenario::table::write_between(&path, pegs::ablation::START, pegs::ablation::END, &table)?;
                 println!("updated {}", path.display());
             }
+        }
+        Command::Node { config, model, duration, stats, ros_args } => {
+            let base = match &config {
+                Some(path) => load_with_model(path, model.as_deref())?,
+                None => match &model {
+                    Some(m) => pegs::config::ModelFile::load(m)?.apply(&Config::default()),
+                    None => Config::default(),
+                },
+            };
+            let launch = pegs::ros::params::parse_ros_args(&ros_args)?;
+            let config = pegs::ros::params::launch_config(base, &launch)?;
+            let s = pegs::ros::node::run(config, &launch, pegs::ros::node::RunOptions { duration, stats })?;
+            println!("{}", serde_json::to_string_pretty(&s)?);
         }
         Command::Replay { recording, config, out, no_visual_forces, no_physics, compare, cameras, readme, model } => {
             let config = load_with_model(&config, model.as_deref())?;

@@ -111,6 +111,122 @@ pub struct TfMessage {
     pub transforms: Vec<TransformStamped>,
 }
 
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Point {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PoseMsg {
+    pub position: Point,
+    pub orientation: Quaternion,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PoseArray {
+    pub header: Header,
+    pub poses: Vec<PoseMsg>,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Twist {
+    pub linear: Vector3,
+    pub angular: Vector3,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Wrench {
+    pub force: Vector3,
+    pub torque: Vector3,
+}
+
+/// `pegs/TrackedObject` (msg/TrackedObject.msg).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TrackedObject {
+    pub name: String,
+    pub pose: PoseMsg,
+    pub twist: Twist,
+    pub visual_wrench: Wrench,
+}
+
+/// `pegs/TrackedObjectArray` (msg/TrackedObjectArray.msg).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TrackedObjectArray {
+    pub header: Header,
+    pub objects: Vec<TrackedObject>,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PointField {
+    pub name: String,
+    pub offset: u32,
+    pub datatype: u8,
+    pub count: u32,
+}
+
+impl PointField {
+    pub const UINT32: u8 = 6;
+    pub const FLOAT32: u8 = 7;
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PointCloud2 {
+    pub header: Header,
+    pub height: u32,
+    pub width: u32,
+    pub fields: Vec<PointField>,
+    pub is_bigendian: bool,
+    pub point_step: u32,
+    pub row_step: u32,
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+    pub is_dense: bool,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CompressedImage {
+    pub header: Header,
+    pub format: String,
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct KeyValue {
+    pub key: String,
+    pub value: String,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DiagnosticStatus {
+    pub level: u8,
+    pub name: String,
+    pub message: String,
+    pub hardware_id: String,
+    pub values: Vec<KeyValue>,
+}
+
+impl DiagnosticStatus {
+    pub const OK: u8 = 0;
+    pub const WARN: u8 = 1;
+    pub const ERROR: u8 = 2;
+    pub const STALE: u8 = 3;
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DiagnosticArray {
+    pub header: Header,
+    pub status: Vec<DiagnosticStatus>,
+}
+
+/// Every message type above is a ROS 2 message for ros2-client (DDS).
+macro_rules! ros_messages {
+    ($($t:ty),*) => { $(impl ros2_client::Message for $t {})* };
+}
+ros_messages!(Image, CameraInfo, JointState, TfMessage, PoseArray, TrackedObjectArray, PointCloud2, CompressedImage, DiagnosticArray);
+
 /// Encapsulation header of little-endian plain CDR, as ROS 2 writes it.
 const CDR_LE: [u8; 4] = [0, 1, 0, 0];
 

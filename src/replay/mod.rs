@@ -6,14 +6,13 @@
 pub mod silhouette;
 
 use crate::config::Config;
+use crate::inputs::{Inputs, decode_image};
 use crate::init::{self, FirstFrames};
 use silhouette::SilhouetteMeter;
-use crate::correct::View;
 use crate::math::Pose;
 use crate::msgs::{self, CameraInfo, Image, JointState, TfMessage};
 use crate::record::{self, RawMessage};
 use crate::render::Camera;
-use crate::robot::{JointStateTracker, JointTrajectory};
 use crate::scenario;
 use crate::tracker::Tracker;
 use crate::trajectory::TrajectoryWriter;
@@ -190,33 +189,6 @@ fn parse(messages: Vec<RawMessage>, warnings: &mut Vec<String>) -> Result<Stream
     Ok(Streams { cameras, images: streams, depth: depth_streams, masks: mask_streams, joint_states })
 }
 
-/// Linear RGB in [0, 1] from an rgb8 or bgr8 image of the camera's size (BGR converted here, at
-/// the boundary); an explanation otherwise.
-pub fn decode_image(img: &Image, camera: &Camera) -> std::result::Result<Vec<Vec3>, String> {
-    if img.width != camera.width || img.height != camera.height {
-        return Err(format!("image is {}x{}, CameraInfo says {}x{}", img.width, img.height, camera.width, camera.height));
-    }
-    let bgr = match img.encoding.as_str() {
-        "rgb8" => false,
-        "bgr8" => true,
-        other => return Err(format!("unsupported encoding '{other}' (rgb8 and bgr8 are)")),
-    };
-    let step = img.step as usize;
-    let (w, h) = (img.width as usize, img.height as usize);
-    if step < 3 * w || img.data.len() < step * h {
-        return Err(format!("image data of {} bytes is too short for {w}x{h} with step {step}", img.data.len()));
-    }
-    let mut out = Vec::with_capacity(w * h);
-    for y in 0..h {
-        for x in 0..w {
-            let p = &img.data[y * step + 3 * x..y * step + 3 * x + 3];
-            let (r, g, b) = if bgr { (p[2], p[1], p[0]) } else { (p[0], p[1], p[2]) };
-            out.push(Vec3::new(r as f32, g as f32, b as f32) / 255.0);
-        }
-    }
-    Ok(out)
-}
-
 /// Metres from a 32FC1 depth image of the camera's size (non-finite or negative values become 0,
 /// unknown).
 pub fn decode_depth(img: &Image, camera: &Camera) -> std::result::Result<Vec<f32>, String> {
@@ -368,24 +340,8 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
             scene
         }
     };
-    // The robot follows the recorded joint states.
-    if let Some((robot, trajectory)) = &mut scene.robot {
-        let mut tracker = JointStateTracker::new(&robot.model);
-        let mut recorded = JointTrajectory::default();
-        for (t, js) in &streams.joint_states {
-            let report = tracker.update(&js.name, &js.position);
-            for unknown in report.new_unknown {
-                metrics.warnings.push(format!("joint state names unknown joint '{unknown}'"));
-            }
-            if !report.rejected_non_finite.is_empty() || !recorded.push(*t, tracker.positions.clone()) {
-                metrics.rejected_joint_states += 1;
-            }
-        }
-        if !recorded.is_empty() {
-            *trajectory = recorded;
-        } else {
-            metrics.warnings.push("no joint states: the robot holds its scenario motion".into());
-        }
+    if scene.robot.is_some() && streams.joint_states.is_empty() {
+        metrics.warnings.push("no joint states: the robot holds its scenario motion".into());
     }
     let mut config = config.clone();
     if let Some((normal, height)) = ground_from_depth {
@@ -454,8 +410,12 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     let mut writer = TrajectoryWriter::create(&out.join("objects.csv"))?;
     writer.record(&tracker.scene.world)?;
     let mut errors: BTreeMap<String, Vec<(f64, f32)>> = BTreeMap::new();
+    // Observations reach the tick through `Inputs` exactly as they do in the live node: each
+    // message is offered when the clock passes its stamp.
+    let robot_start = tracker.scene.robot.as_ref().map(|(r, traj)| (r.model.clone(), traj.at(t0).unwrap_or_else(|| vec![0.0; r.model.joints.len()])));
+    let mut inputs = Inputs::new(streams.cameras.clone(), robot_start.as_ref().map(|(m, q)| (m, q.as_slice())));
     let mut cursor = vec![0usize; streams.cameras.len()];
-    let mut latest: Vec<Option<(f64, Vec<Vec3>)>> = vec![None; streams.cameras.len()];
+    let mut joint_cursor = 0;
     let max_age = config.correct.max_image_age as f64;
     let progress = if opts.progress { indicatif::ProgressBar::new(ticks as u64) } else { indicatif::ProgressBar::hidden() };
     let mut loss_sum = 0.0f32;
@@ -470,34 +430,35 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         let t = t0 + k as f64 * dt;
         for (c, stream) in streams.images.iter().enumerate() {
             while cursor[c] < stream.len() && stream[cursor[c]].0 <= t + 1e-6 {
-                match decode_image(&stream[cursor[c]].1, &streams.cameras[c].1) {
-                    Ok(img) => latest[c] = Some((stream[cursor[c]].0, img)),
-                    Err(why) => {
-                        metrics.rejected_images += 1;
-                        if metrics.rejected_images <= 10 {
-                            metrics.warnings.push(format!("camera {} at {:.3} s: {why}", streams.cameras[c].0, stream[cursor[c]].0));
-                        }
-                    }
-                }
+                // Refusals are counted and explained by `inputs`.
+                let _ = inputs.offer_image(c, &stream[cursor[c]].1, t);
                 cursor[c] += 1;
             }
         }
-        let mut views: Vec<View> = Vec::with_capacity(latest.len());
-        for ((name, cam), img) in streams.cameras.iter().zip(&latest) {
-            match img {
-                Some((stamp, pixels)) if t - stamp <= max_age => views.push(View { camera: *cam, image: pixels }),
-                Some((stamp, _)) => {
-                    let n = metrics.stale_camera_ticks.entry(name.clone()).or_insert(0);
-                    if *n == 0 {
-                        let line = format!("camera {name}: no image since {stamp:.3} s (at {t:.3} s); continuing with the other cameras");
-                        eprintln!("warning: {line}");
-                        metrics.warnings.push(line);
-                    }
-                    *n += 1;
-                }
-                None => {}
+        while joint_cursor < streams.joint_states.len() && streams.joint_states[joint_cursor].0 <= t + 1e-6 {
+            let _ = inputs.offer_joint_state(&streams.joint_states[joint_cursor].1, t);
+            joint_cursor += 1;
+        }
+        if let (Some(trajectory), Some((_, scene_trajectory))) = (inputs.trajectory_for(t), &mut tracker.scene.robot) {
+            *scene_trajectory = trajectory;
+        }
+        for line in inputs.log.take_lines() {
+            if metrics.warnings.len() < 50 {
+                metrics.warnings.push(line);
             }
         }
+        let tick_inputs = inputs.tick_inputs(t, max_age);
+        for name in &tick_inputs.stale {
+            let n = metrics.stale_camera_ticks.entry(name.clone()).or_insert(0);
+            if *n == 0 {
+                let stamp = inputs.cameras.iter().find(|f| &f.name == name).and_then(|f| f.latest.as_ref()).map_or(f64::NAN, |l| l.0);
+                let line = format!("camera {name}: no image since {stamp:.3} s (at {t:.3} s); continuing with the other cameras");
+                eprintln!("warning: {line}");
+                metrics.warnings.push(line);
+            }
+            *n += 1;
+        }
+        let views = tick_inputs.views();
         let stats = tracker.tick(&views)?;
         if let Some(s) = &stats {
             loss_sum += s.loss_before;
@@ -510,11 +471,12 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         let sheet_row = sheet_ticks.contains(&k);
         let mut row = Vec::new();
         for meter in &mut meters {
-            for (c, ((_, cam), img)) in streams.cameras.iter().zip(&latest).enumerate() {
-                let Some((stamp, pixels)) = img else { continue };
+            for (c, feed) in inputs.cameras.iter().enumerate() {
+                let Some((stamp, pixels)) = &feed.latest else { continue };
                 if t - stamp > max_age {
                     continue;
                 }
+                let cam = &feed.camera;
                 if let Some(overlay) = meter.measure(&tracker.scene.world, c, cam, pixels, t, sheet_row) {
                     row.push((cam.width, cam.height, overlay));
                 }
@@ -553,6 +515,8 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         progress.inc(1);
     }
     progress.finish_and_clear();
+    metrics.rejected_images = inputs.log.images_rejected;
+    metrics.rejected_joint_states = inputs.log.joint_states_rejected;
     writer.finish()?;
     metrics.ticks = ticks;
     metrics.seconds = ticks as f64 * dt;
@@ -594,22 +558,4 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     std::fs::write(out.join("metrics.json"), serde_json::to_string_pretty(&metrics)?)?;
     metrics.trace = trace;
     Ok(metrics)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::math::Pose;
-
-    #[test]
-    fn bgr_and_rgb_decode_to_the_same_colours_and_bad_images_are_explained() {
-        let cam = Camera { width: 2, height: 1, fx: 1.0, fy: 1.0, cx: 1.0, cy: 0.5, world_to_camera: Pose::IDENTITY };
-        let rgb = Image { width: 2, height: 1, encoding: "rgb8".into(), step: 6, data: vec![255, 0, 0, 0, 0, 255], ..Default::default() };
-        let bgr = Image { encoding: "bgr8".into(), data: vec![0, 0, 255, 255, 0, 0], ..rgb.clone() };
-        assert_eq!(decode_image(&rgb, &cam).unwrap(), vec![Vec3::X, Vec3::Z]);
-        assert_eq!(decode_image(&bgr, &cam).unwrap(), vec![Vec3::X, Vec3::Z]);
-        assert!(decode_image(&Image { encoding: "mono16".into(), ..rgb.clone() }, &cam).unwrap_err().contains("mono16"));
-        assert!(decode_image(&Image { width: 3, ..rgb.clone() }, &cam).unwrap_err().contains("CameraInfo"));
-        assert!(decode_image(&Image { data: vec![1, 2], ..rgb }, &cam).unwrap_err().contains("too short"));
-    }
 }

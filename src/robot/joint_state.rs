@@ -32,6 +32,11 @@ impl JointStateTracker {
         Self { positions: vec![0.0; model.joints.len()], names, reported_unknown: HashSet::new() }
     }
 
+    /// Whether `name` is one of the model's joints.
+    pub fn knows(&self, name: &str) -> bool {
+        self.index(name).is_some()
+    }
+
     fn index(&self, name: &str) -> Option<usize> {
         self.names.iter().find(|(n, _)| n == name).map(|(_, k)| *k)
     }
@@ -80,6 +85,20 @@ impl JointTrajectory {
     pub fn forget_before(&mut self, t: f64) {
         let keep_from = self.samples.iter().rposition(|(ts, _)| *ts <= t).unwrap_or(0);
         self.samples.drain(..keep_from);
+    }
+
+    /// This trajectory extended to `t` by continuing its last segment linearly for at most
+    /// `max_extrapolation` seconds past the last sample (holding after that).
+    pub fn extended(&self, t: f64, max_extrapolation: f64) -> JointTrajectory {
+        let mut out = self.clone();
+        let n = self.samples.len();
+        if n >= 2 && t > self.samples[n - 1].0 {
+            let ((t0, a), (t1, b)) = (&self.samples[n - 2], &self.samples[n - 1]);
+            let until = t.min(t1 + max_extrapolation);
+            let s = (until - t0) / (t1 - t0);
+            out.push(until, a.iter().zip(b).map(|(x, y)| x + s * (y - x)).collect());
+        }
+        out
     }
 
     /// Linear interpolation at `t`, holding the first/last sample outside their span.

@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Start `pegs node` beside a Franka driver and three RealSense D455s (realsense2_camera with
+# camera_name cam0 / cam1 / cam2, colour aligned, rgb8). Camera extrinsics come from /tf_static
+# (world -> camN_color_optical_frame, e.g. from a hand-eye calibration publisher); joint states
+# from the Franka driver's /joint_states. Extra arguments go to the node, e.g.
+#   franka_3xd455.sh --ros-args -p correct.gain:=1.0
+# Usage: franka_3xd455.sh [CONFIG.yaml] [-- node arguments]
+set -euo pipefail
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+CONFIG=${1:-$ROOT/config/franka_3xd455.yaml}
+shift || true
+[ "${1:-}" = "--" ] && shift
+cargo build --release --locked --manifest-path "$ROOT/Cargo.toml" >&2
+TARGET_DIR=$(cargo metadata --format-version 1 --no-deps --locked --manifest-path "$ROOT/Cargo.toml" | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+cd "$ROOT"
+exec "$TARGET_DIR/release/pegs" node --config "$CONFIG" "$@"

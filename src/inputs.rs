@@ -1,0 +1,433 @@
+//! What a tick consumes, gathered from the outside world: the newest usable image of every camera
+//! and the robot's joint trajectory. Both `pegs replay` and `pegs node` feed observations through
+//! here, so the checks on everything that comes from outside (encodings, sizes, stamps, non-finite
+//! joints, unknown joints) and the choice of data for a tick are one code path.
+//!
+//! This module owns validation and buffering only; it never touches the world or the tracker.
+
+use crate::correct::View;
+use crate::msgs::{Image, JointState};
+use crate::render::Camera;
+use crate::robot::{JointStateTracker, JointTrajectory, RobotModel};
+use glam::Vec3;
+use std::collections::BTreeSet;
+use std::fmt;
+use std::sync::Arc;
+
+/// Stamps this far ahead of the clock are refused (clock skew or a corrupt header).
+pub const MAX_FUTURE_S: f64 = 1.0;
+/// Stamps this far behind a stream's newest one are a jump back (a looped recording, a restarted
+/// driver) rather than reordering...
+pub const JUMP_BACK_S: f64 = 1.0;
+/// ...and after this many consecutive jumped-back messages the stream restarts from them.
+pub const RESTART_AFTER: usize = 3;
+/// How far past its last sample the joint trajectory is extended (linearly) to cover a tick.
+pub const MAX_JOINT_EXTRAPOLATION_S: f64 = 0.05;
+
+/// Why an observation was refused. Every refusal is counted and explained; none changes state.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Rejection {
+    /// Encoding, size or data length disagree with the camera (the text says which).
+    BadImage(String),
+    /// Not later than the newest message of its stream (duplicate or reordered).
+    OutOfOrder { stamp: f64, newest: f64 },
+    /// Stamped ahead of the clock.
+    Future { stamp: f64, now: f64 },
+    /// Names and positions of a joint state differ in length, or a stamp is not finite.
+    Malformed(String),
+    /// Every named joint value was NaN or infinite (the finite ones of a message are still used).
+    NonFinite(Vec<String>),
+}
+
+impl fmt::Display for Rejection {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::BadImage(why) => write!(f, "{why}"),
+            Self::OutOfOrder { stamp, newest } => write!(f, "stamp {stamp:.3} s is not after the newest {newest:.3} s (duplicate or out of order)"),
+            Self::Future { stamp, now } => write!(f, "stamp {stamp:.3} s is {:.3} s in the future", stamp - now),
+            Self::Malformed(why) => write!(f, "malformed: {why}"),
+            Self::NonFinite(names) => write!(f, "non-finite values for {}", names.join(", ")),
+        }
+    }
+}
+
+impl Rejection {
+    /// A short key for counting rejections by kind in diagnostics.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::BadImage(_) => "bad_image",
+            Self::OutOfOrder { .. } => "out_of_order",
+            Self::Future { .. } => "future_stamp",
+            Self::Malformed(_) => "malformed",
+            Self::NonFinite(_) => "non_finite",
+        }
+    }
+}
+
+/// Stamp ordering of one stream: accepts increasing stamps, refuses reordering, and restarts when
+/// the stamps have jumped back for good.
+#[derive(Clone, Debug, Default)]
+struct StampOrder {
+    newest: Option<f64>,
+    jumped_back: usize,
+}
+
+/// What the stamp of a new message means for its stream.
+#[derive(Debug, PartialEq)]
+enum Order {
+    Next,
+    /// Stamps jumped back for good: forget the stream's history and start again from this one.
+    Restart { back_s: f64 },
+}
+
+impl StampOrder {
+    fn check(&mut self, stamp: f64, now: f64) -> Result<Order, Rejection> {
+        if !stamp.is_finite() {
+            return Err(Rejection::Malformed(format!("stamp {stamp}")));
+        }
+        if stamp > now + MAX_FUTURE_S {
+            return Err(Rejection::Future { stamp, now });
+        }
+        match self.newest {
+            Some(newest) if stamp <= newest => {
+                if newest - stamp > JUMP_BACK_S {
+                    self.jumped_back += 1;
+                    if self.jumped_back >= RESTART_AFTER {
+                        self.jumped_back = 0;
+                        self.newest = Some(stamp);
+                        return Ok(Order::Restart { back_s: newest - stamp });
+                    }
+                }
+                Err(Rejection::OutOfOrder { stamp, newest })
+            }
+            _ => {
+                self.jumped_back = 0;
+                self.newest = Some(stamp);
+                Ok(Order::Next)
+            }
+        }
+    }
+}
+
+/// One camera's stream: its model and its newest decoded image.
+#[derive(Clone, Debug)]
+pub struct CameraFeed {
+    pub name: String,
+    pub camera: Camera,
+    /// Stamp and linear-RGB pixels of the newest accepted image.
+    pub latest: Option<(f64, Arc<Vec<Vec3>>)>,
+    order: StampOrder,
+    pub accepted: usize,
+    pub rejected: usize,
+}
+
+/// Counts of everything refused, by source and kind, plus lines worth logging once.
+#[derive(Clone, Debug, Default)]
+pub struct InputLog {
+    pub images_rejected: usize,
+    pub joint_states_rejected: usize,
+    pub unknown_joints: BTreeSet<String>,
+    /// Explanations not yet handed to a logger (drained by `take_lines`).
+    lines: Vec<String>,
+}
+
+impl InputLog {
+    pub fn take_lines(&mut self) -> Vec<String> {
+        std::mem::take(&mut self.lines)
+    }
+}
+
+/// The data a tick uses from one camera.
+#[derive(Clone, Debug)]
+pub struct TickImage {
+    pub name: String,
+    pub stamp: f64,
+    pub camera: Camera,
+    pub pixels: Arc<Vec<Vec3>>,
+}
+
+/// What was available for one tick: usable images, and every camera's image age (None: never
+/// received an image).
+#[derive(Clone, Debug, Default)]
+pub struct TickInputs {
+    pub images: Vec<TickImage>,
+    pub ages: Vec<(String, Option<f64>)>,
+    /// Cameras whose newest image is older than the limit.
+    pub stale: Vec<String>,
+}
+
+impl TickInputs {
+    pub fn views(&self) -> Vec<View<'_>> {
+        self.images.iter().map(|i| View { camera: i.camera, image: &i.pixels }).collect()
+    }
+}
+
+/// The robot's joint states: names resolved against the model, kept as a trajectory.
+#[derive(Clone, Debug)]
+struct Joints {
+    tracker: JointStateTracker,
+    trajectory: JointTrajectory,
+    order: StampOrder,
+}
+
+#[derive(Clone, Debug)]
+pub struct Inputs {
+    pub cameras: Vec<CameraFeed>,
+    joints: Option<Joints>,
+    pub log: InputLog,
+    /// Rejections so far, by kind (for diagnostics).
+    pub rejections: std::collections::BTreeMap<&'static str, usize>,
+}
+
+impl Inputs {
+    /// `robot`: the model whose joints the joint states name, with the joint positions to start
+    /// from; None when the scene has no robot (joint states are then ignored).
+    pub fn new(cameras: Vec<(String, Camera)>, robot: Option<(&RobotModel, &[f64])>) -> Self {
+        let cameras = cameras.into_iter().map(|(name, camera)| CameraFeed { name, camera, latest: None, order: StampOrder::default(), accepted: 0, rejected: 0 }).collect();
+        let joints = robot.map(|(model, q)| {
+            let mut tracker = JointStateTracker::new(model);
+            if q.len() == tracker.positions.len() {
+                tracker.positions.copy_from_slice(q);
+            }
+            Joints { tracker, trajectory: JointTrajectory::default(), order: StampOrder::default() }
+        });
+        Self { cameras, joints, log: InputLog::default(), rejections: Default::default() }
+    }
+
+    pub fn camera_index(&self, name: &str) -> Option<usize> {
+        self.cameras.iter().position(|c| c.name == name)
+    }
+
+    fn refuse(&mut self, what: String, why: Rejection) -> Rejection {
+        *self.rejections.entry(why.kind()).or_insert(0) += 1;
+        // The first few of each kind are explained; the counts carry the rest.
+        if self.rejections[why.kind()] <= 5 {
+            self.log.lines.push(format!("{what}: {why}; ignored"));
+        }
+        why
+    }
+
+    /// Offer camera `c`'s image, received when the clock read `now` (s). Decoded and kept as the
+    /// camera's newest image, or refused with the reason.
+    pub fn offer_image(&mut self, c: usize, image: &Image, now: f64) -> Result<(), Rejection> {
+        let stamp = image.header.stamp.seconds();
+        let feed = &mut self.cameras[c];
+        let name = feed.name.clone();
+        let checked = decode_image(image, &feed.camera).map_err(Rejection::BadImage).and_then(|pixels| feed.order.check(stamp, now).map(|o| (o, pixels)));
+        match checked {
+            Ok((order, pixels)) => {
+                if let Order::Restart { back_s } = order {
+                    self.log.lines.push(format!("camera {name}: stamps jumped back {back_s:.2} s (recording looped or driver restarted); following the new stamps"));
+                }
+                let feed = &mut self.cameras[c];
+                feed.latest = Some((stamp, Arc::new(pixels)));
+                feed.accepted += 1;
+                Ok(())
+            }
+            Err(why) => {
+                self.cameras[c].rejected += 1;
+                self.log.images_rejected += 1;
+                Err(self.refuse(format!("camera {name} image at {stamp:.3} s"), why))
+            }
+        }
+    }
+
+    /// Offer a joint state received when the clock read `now`. Finite values of known joints are
+    /// used; unknown joint names are reported once and skipped.
+    pub fn offer_joint_state(&mut self, js: &JointState, now: f64) -> Result<(), Rejection> {
+        let stamp = js.header.stamp.seconds();
+        let Some(joints) = &mut self.joints else { return Ok(()) };
+        let what = format!("joint state at {stamp:.3} s");
+        if js.name.len() != js.position.len() {
+            self.log.joint_states_rejected += 1;
+            return Err(self.refuse(what, Rejection::Malformed(format!("{} names but {} positions", js.name.len(), js.position.len()))));
+        }
+        // Decide on the whole message before changing anything.
+        let known_finite = js.name.iter().zip(&js.position).filter(|(n, v)| v.is_finite() && joints.tracker.knows(n)).count();
+        let non_finite: Vec<String> = js.name.iter().zip(&js.position).filter(|(n, v)| !v.is_finite() && joints.tracker.knows(n)).map(|(n, _)| n.clone()).collect();
+        if known_finite == 0 && !non_finite.is_empty() {
+            self.log.joint_states_rejected += 1;
+            return Err(self.refuse(what, Rejection::NonFinite(non_finite)));
+        }
+        let order = match joints.order.check(stamp, now) {
+            Ok(o) => o,
+            Err(why) => {
+                self.log.joint_states_rejected += 1;
+                return Err(self.refuse(what, why));
+            }
+        };
+        if let Order::Restart { back_s } = order {
+            joints.trajectory = JointTrajectory::default();
+            self.log.lines.push(format!("joint states jumped back {back_s:.2} s (recording looped or driver restarted); trajectory restarted"));
+        }
+        let report = joints.tracker.update(&js.name, &js.position);
+        for name in report.new_unknown {
+            self.log.lines.push(format!("joint state names unknown joint '{name}'; that value is ignored"));
+            self.log.unknown_joints.insert(name);
+        }
+        joints.trajectory.push(stamp, joints.tracker.positions.clone());
+        if !report.rejected_non_finite.is_empty() {
+            let why = Rejection::NonFinite(report.rejected_non_finite);
+            self.refuse(format!("{what} (other joints used)"), why);
+        }
+        Ok(())
+    }
+
+    /// The robot trajectory to drive the tick ending at `t`: recent samples, extended linearly a
+    /// little past the last one so a tick is not driven by a stale hold. None without a robot or
+    /// before the first joint state.
+    pub fn trajectory_for(&mut self, t: f64) -> Option<JointTrajectory> {
+        let joints = self.joints.as_mut()?;
+        if joints.trajectory.is_empty() {
+            return None;
+        }
+        // Two ticks of history are enough to interpolate this tick.
+        joints.trajectory.forget_before(t - 1.0);
+        Some(joints.trajectory.extended(t, MAX_JOINT_EXTRAPOLATION_S))
+    }
+
+    /// Images for the tick at `t`: every camera's newest image no older than `max_age`.
+    pub fn tick_inputs(&self, t: f64, max_age: f64) -> TickInputs {
+        let mut out = TickInputs::default();
+        for feed in &self.cameras {
+            let age = feed.latest.as_ref().map(|(stamp, _)| t - stamp);
+            out.ages.push((feed.name.clone(), age));
+            match (&feed.latest, age) {
+                (Some((stamp, pixels)), Some(a)) if a <= max_age => out.images.push(TickImage { name: feed.name.clone(), stamp: *stamp, camera: feed.camera, pixels: pixels.clone() }),
+                (Some(_), _) => out.stale.push(feed.name.clone()),
+                (None, _) => {}
+            }
+        }
+        out
+    }
+}
+
+/// Linear RGB in [0, 1] from an rgb8 or bgr8 image of the camera's size (BGR converted here, at
+/// the boundary); an explanation otherwise.
+pub fn decode_image(img: &Image, camera: &Camera) -> Result<Vec<Vec3>, String> {
+    if img.width != camera.width || img.height != camera.height {
+        return Err(format!("image is {}x{}, CameraInfo says {}x{}", img.width, img.height, camera.width, camera.height));
+    }
+    let bgr = match img.encoding.as_str() {
+        "rgb8" => false,
+        "bgr8" => true,
+        other => return Err(format!("unsupported encoding '{other}' (rgb8 and bgr8 are)")),
+    };
+    let step = img.step as usize;
+    let (w, h) = (img.width as usize, img.height as usize);
+    if step < 3 * w || img.data.len() < step * h {
+        return Err(format!("image data of {} bytes is too short for {w}x{h} with step {step}", img.data.len()));
+    }
+    let mut out = Vec::with_capacity(w * h);
+    for y in 0..h {
+        for x in 0..w {
+            let p = &img.data[y * step + 3 * x..y * step + 3 * x + 3];
+            let (r, g, b) = if bgr { (p[2], p[1], p[0]) } else { (p[0], p[1], p[2]) };
+            out.push(Vec3::new(r as f32, g as f32, b as f32) / 255.0);
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::Pose;
+    use crate::msgs::{Header, Time};
+    use crate::robot::{GeometrySource, PackagePaths};
+
+    fn camera() -> Camera {
+        Camera { width: 2, height: 1, fx: 1.0, fy: 1.0, cx: 1.0, cy: 0.5, world_to_camera: Pose::IDENTITY }
+    }
+
+    fn image(t: f64) -> Image {
+        Image { header: Header { stamp: Time::from_seconds(t), frame_id: "cam".into() }, width: 2, height: 1, encoding: "rgb8".into(), step: 6, data: vec![255, 0, 0, 0, 0, 255], ..Default::default() }
+    }
+
+    fn robot() -> RobotModel {
+        let urdf = r#"<robot name="t"><link name="a"/><link name="b"/>
+          <joint name="j1" type="continuous"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/></joint></robot>"#;
+        RobotModel::parse(urdf, std::path::Path::new("."), &PackagePaths::default(), GeometrySource::Collision).unwrap()
+    }
+
+    fn joint_state(t: f64, names: &[&str], q: &[f64]) -> JointState {
+        JointState { header: Header { stamp: Time::from_seconds(t), frame_id: String::new() }, name: names.iter().map(|s| s.to_string()).collect(), position: q.to_vec(), ..Default::default() }
+    }
+
+    #[test]
+    fn bgr_and_rgb_decode_to_the_same_colours_and_bad_images_are_explained() {
+        let cam = camera();
+        let rgb = image(0.0);
+        let bgr = Image { encoding: "bgr8".into(), data: vec![0, 0, 255, 255, 0, 0], ..rgb.clone() };
+        assert_eq!(decode_image(&rgb, &cam).unwrap(), vec![Vec3::X, Vec3::Z]);
+        assert_eq!(decode_image(&bgr, &cam).unwrap(), vec![Vec3::X, Vec3::Z]);
+        assert!(decode_image(&Image { encoding: "mono16".into(), ..rgb.clone() }, &cam).unwrap_err().contains("mono16"));
+        assert!(decode_image(&Image { width: 3, ..rgb.clone() }, &cam).unwrap_err().contains("CameraInfo"));
+        assert!(decode_image(&Image { data: vec![1, 2], ..rgb }, &cam).unwrap_err().contains("too short"));
+    }
+
+    #[test]
+    fn bad_images_are_refused_without_replacing_the_newest_good_one() {
+        let mut inputs = Inputs::new(vec![("a".into(), camera())], None);
+        inputs.offer_image(0, &image(1.0), 1.0).unwrap();
+        let bad = [
+            Image { encoding: "mono8".into(), ..image(1.1) },
+            Image { width: 4, ..image(1.2) },
+            Image { data: vec![0; 3], ..image(1.3) },
+        ];
+        for b in &bad {
+            assert!(matches!(inputs.offer_image(0, b, 1.5), Err(Rejection::BadImage(_))));
+        }
+        assert!(matches!(inputs.offer_image(0, &image(1.0), 1.5), Err(Rejection::OutOfOrder { .. })), "duplicate stamp");
+        assert!(matches!(inputs.offer_image(0, &image(0.9), 1.5), Err(Rejection::OutOfOrder { .. })), "reordered");
+        assert!(matches!(inputs.offer_image(0, &image(9.0), 1.5), Err(Rejection::Future { .. })));
+        assert_eq!(inputs.cameras[0].latest.as_ref().unwrap().0, 1.0, "the good image stays the newest");
+        assert_eq!(inputs.log.images_rejected, 6);
+        assert_eq!(inputs.rejections["bad_image"], 3);
+        assert!(inputs.log.take_lines().iter().any(|l| l.contains("mono8")));
+    }
+
+    #[test]
+    fn a_stream_that_jumped_back_for_good_restarts_after_a_few_messages() {
+        let mut inputs = Inputs::new(vec![("a".into(), camera())], None);
+        inputs.offer_image(0, &image(10.0), 10.0).unwrap();
+        for k in 0..RESTART_AFTER - 1 {
+            assert!(inputs.offer_image(0, &image(2.0 + k as f64 * 0.1), 10.5).is_err());
+        }
+        inputs.offer_image(0, &image(2.5), 10.5).expect("the third message after the jump restarts the stream");
+        assert_eq!(inputs.cameras[0].latest.as_ref().unwrap().0, 2.5);
+        assert!(inputs.log.take_lines().iter().any(|l| l.contains("jumped back")));
+        inputs.offer_image(0, &image(2.6), 10.6).unwrap();
+    }
+
+    #[test]
+    fn stale_and_missing_cameras_are_left_out_of_the_tick_with_their_ages() {
+        let mut inputs = Inputs::new(vec![("a".into(), camera()), ("b".into(), camera()), ("c".into(), camera())], None);
+        inputs.offer_image(0, &image(1.0), 1.0).unwrap();
+        inputs.offer_image(1, &image(0.2), 1.0).unwrap();
+        let tick = inputs.tick_inputs(1.1, 0.5);
+        assert_eq!(tick.images.len(), 1);
+        assert_eq!(tick.stale, vec!["b".to_string()]);
+        assert!((tick.ages[0].1.unwrap() - 0.1).abs() < 1e-9);
+        assert!((tick.ages[1].1.unwrap() - 0.9).abs() < 1e-9);
+        assert_eq!(tick.ages[2].1, None);
+    }
+
+    #[test]
+    fn joint_states_skip_bad_values_and_unknown_names_and_extend_to_the_tick() {
+        let model = robot();
+        let mut inputs = Inputs::new(vec![], Some((&model, &[0.0])));
+        inputs.offer_joint_state(&joint_state(0.0, &["j1"], &[0.0]), 0.0).unwrap();
+        inputs.offer_joint_state(&joint_state(0.1, &["j1", "mystery"], &[0.1, 5.0]), 0.1).unwrap();
+        assert!(inputs.log.unknown_joints.contains("mystery"));
+        assert!(matches!(inputs.offer_joint_state(&joint_state(0.15, &["j1"], &[f64::NAN]), 0.15), Err(Rejection::NonFinite(_))));
+        assert!(matches!(inputs.offer_joint_state(&joint_state(0.2, &["j1"], &[]), 0.2), Err(Rejection::Malformed(_))));
+        assert!(matches!(inputs.offer_joint_state(&joint_state(0.05, &["j1"], &[9.0]), 0.2), Err(Rejection::OutOfOrder { .. })));
+        let trajectory = inputs.trajectory_for(0.13).unwrap();
+        // Linear extension of the last two samples (slope 1 rad/s) for 30 ms.
+        assert!((trajectory.at(0.13).unwrap()[0] - 0.13).abs() < 1e-9);
+        // Beyond the extrapolation limit the extension holds.
+        let far = inputs.trajectory_for(1.0).unwrap();
+        assert!((far.at(1.0).unwrap()[0] - (0.1 + MAX_JOINT_EXTRAPOLATION_S)).abs() < 1e-9);
+    }
+}

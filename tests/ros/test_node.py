@@ -1,0 +1,370 @@
+"""rclpy integration tests of `pegs node` (run by tests/ros/run.sh inside a loopback-only netns).
+
+A generated scenario (pushed_box) is played into the node in real time by Python publishers while
+Python subscribers record what the node publishes. During the main run the player also sends every
+kind of bad input the node must survive; the tests then check that outputs kept coming at rate,
+that the tracked box followed the scenario's ground truth, and that each bad input was refused,
+counted and reported in /diagnostics. A second run leaves one camera without CameraInfo.
+"""
+import csv
+import json
+import math
+import os
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray
+from pegs.msg import TrackedObjectArray
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CompressedImage, Image, JointState, PointCloud2
+from tf2_msgs.msg import TFMessage
+
+ROOT = Path(os.environ.get("PEGS_ROOT", Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(ROOT / "launch_scripts"))
+from play_recording import RELIABLE, SENSOR, Player, restamped  # noqa: E402
+
+PEGS = os.environ["PEGS_BIN"]
+RUN_SECONDS = 4.5  # the scenario's length
+
+
+def stamp_of(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def set_stamp(msg, t: float):
+    msg.header.stamp.sec = int(t)
+    msg.header.stamp.nanosec = int(round((t - int(t)) * 1e9)) % 1_000_000_000
+    return msg
+
+
+@pytest.fixture(scope="module")
+def recording():
+    out = Path(tempfile.mkdtemp(prefix="pegs-ros-"))
+    subprocess.run([PEGS, "scenario", "generate", "pushed_box", "--out", str(out), "--width", "160", "--height", "90"], check=True, stdout=subprocess.DEVNULL)
+    return out
+
+
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()
+
+
+class Recorder:
+    """Subscribes to every output of the node and keeps (receive time, message)."""
+
+    def __init__(self, node):
+        self.got = {}
+        self.node = node
+
+        def keep(name):
+            return lambda msg: self.got.setdefault(name, []).append((time.time(), msg))
+
+        node.create_subscription(TrackedObjectArray, "/pegs/objects", keep("objects"), 50)
+        node.create_subscription(PoseArray, "/pegs/poses", keep("poses"), 50)
+        node.create_subscription(PointCloud2, "/pegs/particles", keep("particles"), qos_profile_sensor_data)
+        node.create_subscription(Image, "/pegs/debug/cam0/image", keep("debug"), qos_profile_sensor_data)
+        node.create_subscription(CompressedImage, "/pegs/debug/cam0/image/compressed", keep("debug_compressed"), qos_profile_sensor_data)
+        node.create_subscription(DiagnosticArray, "/diagnostics", keep("diagnostics"), 50)
+        node.create_subscription(TFMessage, "/tf", keep("tf"), 100)
+
+    def count(self, name):
+        return len(self.got.get(name, []))
+
+
+def start_node(recording: Path, log_name: str, extra=()):
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    stats = recording / f"{log_name}.stats.json"
+    log = open(recording / f"{log_name}.log", "w")
+    proc = subprocess.Popen(
+        [PEGS, "node", "--config", str(recording / "config.yaml"), "--stats", str(stats), "--ros-args", "-p", "node.debug_images_every:=3", *extra],
+        env=env, stdout=log, stderr=subprocess.STDOUT,
+    )
+    return proc, stats
+
+
+def stop_node(proc, stats: Path) -> dict:
+    proc.send_signal(2)
+    proc.wait(timeout=30)
+    assert proc.returncode == 0, f"node exited with {proc.returncode}"
+    return json.loads(stats.read_text())
+
+
+def spin_for(node, seconds: float, player=None, each=None):
+    end = time.time() + seconds
+    while time.time() < end:
+        if player is not None:
+            player.publish_due(time.time())
+        if each is not None:
+            each(time.time())
+        rclpy.spin_once(node, timeout_sec=0.003)
+
+
+def wait_for_discovery(node, player, timeout: float = 20.0):
+    """Until the node has matched every topic the player publishes and we have matched its outputs."""
+    topics = set(player.publishers) | {"/tf_static"}
+    end = time.time() + timeout
+
+    def pending():
+        return [t for t in topics if node.count_subscribers(t) == 0] + [t for t in ["/pegs/objects", "/diagnostics"] if node.count_publishers(t) == 0]
+
+    while time.time() < end and pending():
+        rclpy.spin_once(node, timeout_sec=0.05)
+    assert not pending(), f"not discovered: {pending()}"
+    spin_for(node, 0.5)  # let the readers match the writers too
+
+
+def call(node, client, request, timeout=10.0):
+    assert client.wait_for_service(timeout_sec=timeout), f"service {client.srv_name} not available"
+    future = client.call_async(request)
+    rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
+    assert future.done(), f"no answer from {client.srv_name}"
+    return future.result()
+
+
+@pytest.fixture(scope="module")
+def main_run(recording, ros):
+    """Play the scenario with faults injected; record outputs; stop the node."""
+    node = rclpy.create_node("pegs_test_main")
+    recorder = Recorder(node)
+    proc, stats_path = start_node(recording, "main")
+    player = Player(node, str(recording / "recording.mcap"))
+    image_pub = node.create_publisher(Image, "/cam0/color/image_raw", SENSOR)
+    image1_pub = node.create_publisher(Image, "/cam1/color/image_raw", SENSOR)
+    joints_pub = player.publishers["/joint_states"]
+    wait_for_discovery(node, player)
+    # A good image to copy faults from.
+    template = next(m for m in player.messages if m[1] == "/cam0/color/image_raw")
+    from rclpy.serialization import deserialize_message
+    good = deserialize_message(template[3], Image)
+    joint_names = deserialize_message(next(m for m in player.messages if m[1] == "/joint_states")[3], JointState).name
+
+    start = time.time() + 1.0
+    player.begin(start)
+    sent = []
+
+    def fault(name, at, action):
+        return [name, start + at, action]
+
+    def wrong_encoding(now):
+        img = Image(header=good.header, height=good.height, width=good.width, encoding="mono8", is_bigendian=0, step=good.width, data=bytes(good.width * good.height))
+        image_pub.publish(set_stamp(img, now))
+
+    def wrong_size(now):
+        img = Image(header=good.header, height=good.height // 2, width=good.width, encoding="rgb8", is_bigendian=0, step=good.width * 3, data=bytes(good.width * 3 * (good.height // 2)))
+        image1_pub.publish(set_stamp(img, now))
+
+    def nan_joints(now):
+        joints_pub.publish(set_stamp(JointState(name=list(joint_names), position=[float("nan")] * len(joint_names)), now))
+
+    def unknown_joint(now):
+        joints_pub.publish(set_stamp(JointState(name=["mystery_joint"], position=[0.3]), now))
+
+    def backwards(now):
+        image_pub.publish(set_stamp(good, now - 5.0))
+
+    def future(now):
+        image_pub.publish(set_stamp(good, now + 30.0))
+
+    def malformed(now):
+        # Valid encapsulation header, then a string length far past the end of the data.
+        image1_pub.publish(b"\x00\x01\x00\x00" + struct.pack("<iII", 1, 2, 0x7FFFFFF0) + b"xyz")
+
+    def burst(now):
+        for k in range(300):
+            image_pub.publish(set_stamp(good, now - 0.2 + k * 1e-5))
+
+    def stop_cam2(now):
+        player.paused_topics.add("/cam2/")
+
+    faults = [
+        fault("wrong_encoding", 0.5, wrong_encoding),
+        fault("wrong_size", 0.7, wrong_size),
+        fault("nan_joints", 0.9, nan_joints),
+        fault("unknown_joint", 1.1, unknown_joint),
+        fault("backwards", 1.3, backwards),
+        fault("future", 1.5, future),
+        fault("malformed", 1.7, malformed),
+        fault("burst", 1.9, burst),
+        fault("stop_cam2", 2.5, stop_cam2),
+    ]
+
+    def inject(now):
+        for f in faults:
+            if f[1] is not None and now >= f[1]:
+                f[2](now)
+                sent.append((f[0], now))
+                f[1] = None
+
+    spin_for(node, (start - time.time()) + RUN_SECONDS + 1.5, player, inject)
+
+    # Parameters through the standard services, while the node runs.
+    params = {}
+    listed = call(node, node.create_client(ListParameters, "/pegs/list_parameters"), ListParameters.Request())
+    params["names"] = list(listed.result.names)
+    get = node.create_client(GetParameters, "/pegs/get_parameters")
+    params["gain_before"] = call(node, get, GetParameters.Request(names=["correct.gain"])).values[0].double_value
+    setter = node.create_client(SetParameters, "/pegs/set_parameters")
+
+    def set_param(name, value):
+        p = Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value))
+        return call(node, setter, SetParameters.Request(parameters=[p])).results[0]
+
+    params["set_gain"] = set_param("correct.gain", 0.8)
+    params["set_dt"] = set_param("physics.dt", 0.01)
+    params["set_bad_gain"] = set_param("correct.gain", -1.0)
+    params["gain_after"] = call(node, get, GetParameters.Request(names=["correct.gain"])).values[0].double_value
+    params["dt_after"] = call(node, get, GetParameters.Request(names=["physics.dt"])).values[0].double_value
+    spin_for(node, 1.5)
+    stats = stop_node(proc, stats_path)
+    node.destroy_node()
+    return {"recorder": recorder, "player": player, "stats": stats, "sent": dict(sent), "start": start, "params": params, "log": (recording / "main.log").read_text()}
+
+
+def ground_truth(recording: Path):
+    rows = list(csv.DictReader(open(recording / "ground_truth.csv")))
+    return [(float(r["t"]), float(r["x"]), float(r["y"]), float(r["z"])) for r in rows if r["object"] == "box"]
+
+
+def truth_at(track, t):
+    return min(track, key=lambda r: abs(r[0] - t))
+
+
+def level(status) -> int:
+    """diagnostic_msgs levels are `byte`: rclpy gives bytes."""
+    return status.level[0] if isinstance(status.level, bytes) else int(status.level)
+
+
+def last_diagnostics(run):
+    """The last /diagnostics while the recording still played, after cam2 had stopped."""
+    start = run["start"]
+    during = [m for _, m in run["recorder"].got["diagnostics"] if start + 3.1 <= stamp_of(m) <= start + RUN_SECONDS]
+    assert during, "no diagnostics in the last part of the playback"
+    return {s.name: s for s in during[-1].status}
+
+
+def test_outputs_arrive_at_the_tick_rate(main_run):
+    rec, start = main_run["recorder"], main_run["start"]
+    stamps = [stamp_of(m) for _, m in rec.got.get("objects", []) if start <= stamp_of(m) <= start + RUN_SECONDS]
+    rate = len(stamps) / RUN_SECONDS
+    print(f"objects at {rate:.1f} Hz during playback; node stats {json.dumps(main_run['stats'])}")
+    # 30 Hz ticks; on a loaded 2-core machine (this player and recorder share it) some overrun and
+    # are skipped, not queued. Every tick that ran was published.
+    assert rate >= 15.0, f"poses at {rate:.1f} Hz"
+    assert rec.count("objects") >= 0.9 * main_run["stats"]["ticks"]
+    assert stamps == sorted(stamps), "tick stamps go forward"
+    for name in ["poses", "particles", "tf"]:
+        assert rec.count(name) >= 0.7 * rec.count("objects"), f"{name}: {rec.count(name)} vs {rec.count('objects')} object messages"
+    assert rec.count("debug") >= 10 and rec.count("debug_compressed") >= 10, "debug images every third tick"
+    assert rec.count("diagnostics") >= 3
+
+
+def test_tracked_box_follows_the_ground_truth(main_run, recording):
+    track = ground_truth(recording)
+    player, start = main_run["player"], main_run["start"]
+    errors = []
+    for _, msg in main_run["recorder"].got["objects"]:
+        t = player.recording_time(stamp_of(msg))
+        if not 1.0 <= t <= RUN_SECONDS:
+            continue
+        (box,) = [o for o in msg.objects if o.name == "box"]
+        _, x, y, z = truth_at(track, t)
+        p = box.pose.position
+        errors.append(math.dist((p.x, p.y, p.z), (x, y, z)))
+    assert len(errors) > 50
+    mean_mm = 1e3 * sum(errors) / len(errors)
+    moved_mm = 1e3 * math.dist(track[0][1:], track[-1][1:])
+    print(f"live tracking error: mean {mean_mm:.1f} mm over {len(errors)} ticks (box moved {moved_mm:.0f} mm)")
+    assert moved_mm > 100, "the scenario pushes the box"
+    assert mean_mm < 15.0
+
+
+def test_object_messages_are_complete(main_run):
+    _, msg = main_run["recorder"].got["objects"][-1]
+    assert [o.name for o in msg.objects] == ["box"]
+    assert msg.header.frame_id == "world"
+    q = msg.objects[0].pose.orientation
+    assert abs(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w - 1.0) < 1e-6
+    _, cloud = main_run["recorder"].got["particles"][-1]
+    assert [f.name for f in cloud.fields] == ["x", "y", "z", "object_id"]
+    assert cloud.point_step == 16 and len(cloud.data) == cloud.width * 16 and cloud.width > 100
+    _, tf = main_run["recorder"].got["tf"][-1]
+    assert tf.transforms[0].child_frame_id == "box" and tf.transforms[0].header.frame_id == "world"
+    # The compressed debug image is a lossless PNG of the raw one.
+    _, raw = main_run["recorder"].got["debug"][-1]
+    assert (raw.width, raw.height, raw.encoding) == (160, 90, "rgb8") and len(raw.data) == 160 * 90 * 3
+    _, compressed = main_run["recorder"].got["debug_compressed"][-1]
+    assert "png" in compressed.format and bytes(compressed.data[:8]) == b"\x89PNG\r\n\x1a\n"
+    assert max(raw.data) > 50, "the debug render shows the scene"
+
+
+def test_every_bad_input_is_refused_counted_and_reported(main_run):
+    sent = main_run["sent"]
+    assert set(sent) == {"wrong_encoding", "wrong_size", "nan_joints", "unknown_joint", "backwards", "future", "malformed", "burst", "stop_cam2"}
+    stats, log = main_run["stats"], main_run["log"]
+    rejections = stats["rejections"]
+    assert rejections.get("bad_image", 0) >= 2, rejections
+    assert rejections.get("non_finite", 0) >= 1, rejections
+    assert rejections.get("out_of_order", 0) >= 1, rejections
+    assert rejections.get("future_stamp", 0) >= 1, rejections
+    assert stats["malformed_messages"] >= 1, stats
+    for needle in ["mono8", "CameraInfo says", "non-finite", "mystery_joint", "in the future", "malformed"]:
+        assert needle in log, f"no log line mentions '{needle}'"
+    inputs = last_diagnostics(main_run)["pegs: inputs"]
+    values = {kv.key: kv.value for kv in inputs.values}
+    assert level(inputs) == 1, inputs.message
+    assert "mystery_joint" in values["unknown_joints"]
+    assert int(values["bad_image"]) >= 2 and int(values["future_stamp"]) >= 1
+
+
+def test_a_camera_that_stops_is_reported_and_tracking_continues(main_run):
+    status = last_diagnostics(main_run)
+    assert level(status["pegs: camera cam2"]) == 2 and "stopped publishing" in status["pegs: camera cam2"].message
+    assert level(status["pegs: camera cam0"]) in (0, 1)
+    # Poses kept coming after cam2 stopped (checked against the truth in the tracking test).
+    player, start = main_run["player"], main_run["start"]
+    after = [m for _, m in main_run["recorder"].got["objects"] if player.recording_time(stamp_of(m)) > 3.0]
+    assert len(after) > 20
+
+
+def test_parameters_are_listed_read_and_set(main_run):
+    p = main_run["params"]
+    assert {"correct.gain", "physics.dt", "node.cameras", "scene.scenario"} <= set(p["names"])
+    assert abs(p["gain_before"] - 1.5) < 1e-6 or p["gain_before"] > 0
+    assert p["set_gain"].successful, p["set_gain"].reason
+    assert abs(p["gain_after"] - 0.8) < 1e-9
+    assert not p["set_dt"].successful and "fixed" in p["set_dt"].reason
+    assert not p["set_bad_gain"].successful
+    assert abs(p["dt_after"] - 1 / 30) < 1e-6
+
+
+def test_node_runs_without_camera_info_for_one_camera(recording, ros):
+    node = rclpy.create_node("pegs_test_missing_info")
+    recorder = Recorder(node)
+    proc, stats_path = start_node(recording, "missing_info")
+    player = Player(node, str(recording / "recording.mcap"), skip_topics=("/cam2/color/camera_info",))
+    wait_for_discovery(node, player)
+    # Twice through: the node waits a few seconds for the missing CameraInfo before it starts.
+    for _ in range(2):
+        player.cursor = 0
+        player.begin(time.time() + 0.2)
+        spin_for(node, RUN_SECONDS + 0.5, player)
+    stats = stop_node(proc, stats_path)
+    node.destroy_node()
+    log = (recording / "missing_info.log").read_text()
+    assert "camera cam2: no CameraInfo" in log
+    assert recorder.count("objects") > 30, "tracking went on with two cameras"
+    assert stats["ticks"] > 30
+    status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
+    assert level(status["pegs: camera cam2"]) == 2 and "no CameraInfo" in status["pegs: camera cam2"].message
+    assert level(status["pegs: camera cam0"]) == 0
