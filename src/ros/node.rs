@@ -609,7 +609,7 @@ fn diagnostics(header: &Header, shared: &Mutex<Shared>, tick: &crate::inputs::Ti
         name: "pegs: tick".into(),
         message: if tick_level == DiagnosticStatus::OK { "on time".into() } else { format!("ticks take {mean_ms:.1} ms of {:.1} ms", dt * 1e3) },
         hardware_id: "pegs".into(),
-        values: vec![kv("tick_ms_mean", format!("{mean_ms:.2}")), kv("ticks", stats.ticks), kv("overruns", stats.overruns), kv("skipped_ticks", stats.skipped_ticks), kv("dropped_outputs", stats.dropped_outputs)],
+        values: vec![kv("tick_ms_mean", format!("{mean_ms:.2}")), kv("ticks", stats.ticks), kv("overruns", stats.overruns), kv("skipped_ticks", stats.skipped_ticks), kv("dropped_outputs", stats.dropped_outputs), kv("rss_mb", format!("{:.1}", rss_mb()))],
     });
     for feed in &inputs.cameras {
         let age = tick.ages.iter().find(|(n, _)| *n == feed.name).and_then(|(_, a)| *a);
