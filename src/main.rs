@@ -150,8 +150,12 @@ enum ImportFormat {
 }
 
 /// The configuration at `config`, with the effects of the model file at `model` (if any) added.
-fn load_with_model(config: &std::path::Path, model: Option<&std::path::Path>) -> Result<Config> {
-    let config = Config::load(config)?;
+/// The configuration file (the defaults without one) with a model file's effects added.
+fn load_with_model(config: Option<&std::path::Path>, model: Option<&std::path::Path>) -> Result<Config> {
+    let config = match config {
+        Some(path) => Config::load(path)?,
+        None => Config::default(),
+    };
     let Some(path) = model else { return Ok(config) };
     let model = pegs::config::ModelFile::load(path)?;
     println!("model {}: {} effect(s) added", path.display(), model.effects.len());
@@ -370,20 +374,14 @@ fn main() -> Result<()> {
             }
         }
         Command::Node { config, model, duration, stats, ros_args } => {
-            let base = match &config {
-                Some(path) => load_with_model(path, model.as_deref())?,
-                None => match &model {
-                    Some(m) => pegs::config::ModelFile::load(m)?.apply(&Config::default()),
-                    None => Config::default(),
-                },
-            };
+            let base = load_with_model(config.as_deref(), model.as_deref())?;
             let launch = pegs::ros::params::parse_ros_args(&ros_args)?;
             let config = pegs::ros::params::launch_config(base, &launch)?;
             let s = pegs::ros::node::run(config, &launch, pegs::ros::node::RunOptions { duration, stats })?;
             println!("{}", serde_json::to_string_pretty(&s)?);
         }
         Command::Replay { recording, config, out, no_visual_forces, no_physics, compare, cameras, readme, model } => {
-            let config = load_with_model(&config, model.as_deref())?;
+            let config = load_with_model(Some(&config), model.as_deref())?;
             let opts = pegs::replay::ReplayOptions { visual_forces: !no_visual_forces, physics: !no_physics, max_cameras: cameras, ..Default::default() };
             let m = if compare { pegs::replay::run_compare(&recording, &config, &out, true)? } else { pegs::replay::run(&recording, &config, &out, opts)? };
             println!("replayed {} ticks ({:.1} s) from cameras {:?} [{}], {:.1} ms per tick", m.ticks, m.seconds, m.cameras, m.mode, m.wall_ms_per_tick);
@@ -412,7 +410,7 @@ fn main() -> Result<()> {
             }
         }
         Command::Diagnose { recording, config, out, model } => {
-            let config = load_with_model(&config, model.as_deref())?;
+            let config = load_with_model(Some(&config), model.as_deref())?;
             let report = pegs::diagnose::diagnose(&recording, &config, &out, pegs::diagnose::DiagnoseOptions::default())?;
             for o in &report.objects {
                 if o.effect == "none" {

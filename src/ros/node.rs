@@ -95,12 +95,6 @@ struct Shared {
     unused_cameras: BTreeMap<String, String>,
 }
 
-impl Shared {
-    fn note(&mut self, line: String) {
-        log(&line);
-    }
-}
-
 /// One tick's results for the publishing thread.
 struct TickOutput {
     header: Header,
@@ -284,7 +278,7 @@ fn subscribe(node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Re
                         let n = s.malformed.entry(name.clone()).or_insert(0);
                         *n += 1;
                         if *n <= 5 {
-                            s.note(format!("{name}: malformed message ({e:?}); ignored"));
+                            log(&format!("{name}: malformed message ({e:?}); ignored"));
                         }
                     }
                 }
@@ -311,7 +305,7 @@ fn subscribe(node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Re
             let k = info.k;
             if !(k[0] > 0.0 && k[4] > 0.0 && k.iter().all(|v| v.is_finite())) || info.width == 0 || info.height == 0 {
                 if s.bad_camera_info.insert(c.clone(), format!("fx {} fy {} size {}x{}", k[0], k[4], info.width, info.height)).is_none() {
-                    s.note(format!("camera {c}: invalid CameraInfo (fx {}, fy {}, {}x{}); ignored", k[0], k[4], info.width, info.height));
+                    log(&format!("camera {c}: invalid CameraInfo (fx {}, fy {}, {}x{}); ignored", k[0], k[4], info.width, info.height));
                 }
                 return;
             }
@@ -321,7 +315,7 @@ fn subscribe(node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Re
                 }
                 Some(old) if (old.width, old.height, old.k) != (info.width, info.height, info.k) && s.inputs.is_some() => {
                     if s.bad_camera_info.insert(c.clone(), "changed while running".into()).is_none() {
-                        s.note(format!("camera {c}: CameraInfo changed while running; keeping the first (restart the node to use the new one)"));
+                        log(&format!("camera {c}: CameraInfo changed while running; keeping the first (restart the node to use the new one)"));
                     }
                 }
                 Some(_) => {
@@ -358,14 +352,14 @@ fn subscribe(node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Re
         for t in tf.transforms {
             let Some(cam) = frames.get(&t.child_frame_id) else { continue };
             if t.header.frame_id != world {
-                s.note(format!("/tf_static {} -> {}: only transforms from '{world}' are used", t.header.frame_id, t.child_frame_id));
+                log(&format!("/tf_static {} -> {}: only transforms from '{world}' are used", t.header.frame_id, t.child_frame_id));
                 continue;
             }
             let (p, q) = (t.transform.translation, t.transform.rotation);
             let values = [p.x, p.y, p.z, q.x, q.y, q.z, q.w];
             let norm = (q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w).sqrt();
             if values.iter().any(|v| !v.is_finite()) || !(0.5..2.0).contains(&norm) {
-                s.note(format!("/tf_static {}: not a valid transform; ignored", t.child_frame_id));
+                log(&format!("/tf_static {}: not a valid transform; ignored", t.child_frame_id));
                 continue;
             }
             let camera_to_world = Pose::new(Vec3::new(p.x as f32, p.y as f32, p.z as f32), Quat::from_xyzw(q.x as f32, q.y as f32, q.z as f32, q.w as f32).normalize());
@@ -415,7 +409,7 @@ fn start_tracker(config: &Config, shared: &Mutex<Shared>, stop: &AtomicBool) -> 
                         (true, false) => "no /tf_static transform to its optical frame",
                         _ => "not ready",
                     };
-                    s.note(format!("camera {name}: {why} after {waited:.1} s; continuing without it"));
+                    log(&format!("camera {name}: {why} after {waited:.1} s; continuing without it"));
                     s.unused_cameras.insert(name.clone(), why.to_string());
                 }
             }
@@ -434,7 +428,7 @@ fn start_tracker(config: &Config, shared: &Mutex<Shared>, stop: &AtomicBool) -> 
             let mut scene = scene;
             scene.world.time = t;
             let tracker = Tracker::new(scene, config, true)?;
-            s.note(format!("tracking {} object(s) with {} camera(s)", tracker.scene.world.shapes.dynamic_ids().count(), inputs.cameras.len()));
+            log(&format!("tracking {} object(s) with {} camera(s)", tracker.scene.world.shapes.dynamic_ids().count(), inputs.cameras.len()));
             s.inputs = Some(inputs);
             return Ok(Some(tracker));
         }
