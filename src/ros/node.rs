@@ -19,6 +19,7 @@ use anyhow::{Context as _, Result, anyhow, bail};
 use futures::StreamExt;
 use glam::{Quat, Vec3};
 use ros2_client::{Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile};
+use ros2_client::dds::rustdds::{self, TopicKind, policy::ResourceLimits};
 use ros2_client::qos::{Durability, History, Reliability, WhenFull};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -70,6 +71,9 @@ pub struct RunStats {
     pub rss_mb_start: f64,
     pub rss_mb_end: f64,
     pub rejections: BTreeMap<String, usize>,
+    /// Images accepted per camera over the tracking run (a rate far below the camera's says the
+    /// network lost them: large best-effort samples arrive only if every fragment does).
+    pub images_accepted: BTreeMap<String, usize>,
 }
 
 /// Resident memory of this process in MB (Linux; 0 elsewhere).
@@ -190,7 +194,8 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
     let nc = config.node.clone();
     let shared = Arc::new(Mutex::new(Shared::default()));
     let publishers = create_publishers(&mut node, &nc)?;
-    subscribe(&mut node, &nc, shared.clone())?;
+    let node_name = NodeName::new(&namespace, &node_name).map_err(|e| anyhow!("bad node name: {e:?}"))?;
+    subscribe(&context, &node_name, &mut node, &nc, shared.clone())?;
     log(&format!("node {} up: cameras {:?}, rate {:.1} Hz", node.fully_qualified_name(), nc.cameras, 1.0 / config.physics.dt));
 
     let stop = Arc::new(AtomicBool::new(false));
@@ -252,10 +257,36 @@ fn create_publishers(node: &mut Node, nc: &NodeConfig) -> Result<Publishers> {
     })
 }
 
+/// Creates subscription topics whose receive cache holds no more samples than the history depth.
+/// ros2-client's QoS profiles carry no resource limits, and without them RustDDS keeps up to 64
+/// samples per topic whatever the depth: 64 images per camera, and for topics that publish
+/// rarely (depth and masks, once per recording loop) a cache that fills for minutes, which is
+/// the memory growth a long run showed.
+struct BoundedTopics<'a> {
+    context: &'a Context,
+    node_name: &'a NodeName,
+}
+
+impl BoundedTopics<'_> {
+    fn create(&self, name: &str, type_name: MessageTypeName, qos: &QosProfile) -> Result<rustdds::Topic> {
+        let mut policies = rustdds::QosPolicies::from(qos);
+        if let History::KeepLast { depth } = qos.history {
+            let depth = depth as i32;
+            let limits = rustdds::QosPolicyBuilder::new().resource_limits(ResourceLimits { max_samples: depth, max_instances: 1, max_samples_per_instance: depth }).build();
+            policies = policies.modify_by(&limits);
+        }
+        let dds_name = topic_name(name)?.to_dds_name("rt", self.node_name, "");
+        self.context.domain_participant().create_topic(dds_name, type_name.dds_msg_type(), &policies, TopicKind::NoKey).map_err(|e| anyhow!("topic {name}: {e:?}"))
+    }
+}
+
 /// Spawn one task per subscription. A message that cannot be decoded is counted and logged;
 /// nothing a publisher sends stops a task.
-fn subscribe(node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Result<()> {
+fn subscribe(context: &Context, node_name: &NodeName, node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Result<()> {
+    let bounded = BoundedTopics { context, node_name };
+    #[allow(clippy::too_many_arguments)]
     fn sub<T: 'static + serde::de::DeserializeOwned + Send + Sync>(
+        topics: &BoundedTopics,
         node: &mut Node,
         name: &str,
         package: &str,
@@ -264,7 +295,7 @@ fn subscribe(node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Re
         shared: Arc<Mutex<Shared>>,
         handle: impl Fn(&mut Shared, T) + Send + 'static,
     ) -> Result<()> {
-        let topic = node.create_topic(&topic_name(name)?, MessageTypeName::new(package, ty), &qos).map_err(|e| anyhow!("topic {name}: {e:?}"))?;
+        let topic = topics.create(name, MessageTypeName::new(package, ty), &qos)?;
         let subscription = node.create_subscription::<T>(&topic, None).map_err(|e| anyhow!("subscription {name}: {e:?}"))?;
         let name = name.to_string();
         tokio::spawn(async move {
@@ -288,7 +319,7 @@ fn subscribe(node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Re
     }
     for cam in nc.cameras.clone() {
         let c = cam.clone();
-        sub::<Image>(node, &NodeConfig::for_camera(&nc.image_topic, &cam), "sensor_msgs", "Image", sensor_qos(), shared.clone(), move |s, img| {
+        sub::<Image>(&bounded, node, &NodeConfig::for_camera(&nc.image_topic, &cam), "sensor_msgs", "Image", sensor_qos(), shared.clone(), move |s, img| {
             match &mut s.inputs {
                 Some(inputs) => {
                     if let Some(k) = inputs.camera_index(&c) {
@@ -301,7 +332,7 @@ fn subscribe(node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Re
             }
         })?;
         let c = cam.clone();
-        sub::<CameraInfo>(node, &NodeConfig::for_camera(&nc.camera_info_topic, &cam), "sensor_msgs", "CameraInfo", state_qos(5).reliability(Reliability::BestEffort), shared.clone(), move |s, info| {
+        sub::<CameraInfo>(&bounded, node, &NodeConfig::for_camera(&nc.camera_info_topic, &cam), "sensor_msgs", "CameraInfo", state_qos(5).reliability(Reliability::BestEffort), shared.clone(), move |s, info| {
             let k = info.k;
             if !(k[0] > 0.0 && k[4] > 0.0 && k.iter().all(|v| v.is_finite())) || info.width == 0 || info.height == 0 {
                 if s.bad_camera_info.insert(c.clone(), format!("fx {} fy {} size {}x{}", k[0], k[4], info.width, info.height)).is_none() {
@@ -326,19 +357,19 @@ fn subscribe(node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Re
             }
         })?;
         let c = cam.clone();
-        sub::<Image>(node, &NodeConfig::for_camera(&nc.depth_topic, &cam), "sensor_msgs", "Image", sensor_qos(), shared.clone(), move |s, img| {
+        sub::<Image>(&bounded, node, &NodeConfig::for_camera(&nc.depth_topic, &cam), "sensor_msgs", "Image", sensor_qos(), shared.clone(), move |s, img| {
             if s.inputs.is_none() {
                 s.first_depth.insert(c.clone(), img);
             }
         })?;
         let c = cam.clone();
-        sub::<Image>(node, &NodeConfig::for_camera(&nc.mask_topic, &cam), "sensor_msgs", "Image", sensor_qos(), shared.clone(), move |s, img| {
+        sub::<Image>(&bounded, node, &NodeConfig::for_camera(&nc.mask_topic, &cam), "sensor_msgs", "Image", sensor_qos(), shared.clone(), move |s, img| {
             if s.inputs.is_none() {
                 s.first_masks.insert(c.clone(), img);
             }
         })?;
     }
-    sub::<JointState>(node, &nc.joint_states_topic, "sensor_msgs", "JointState", state_qos(100), shared.clone(), move |s, js| {
+    sub::<JointState>(&bounded, node, &nc.joint_states_topic, "sensor_msgs", "JointState", state_qos(100), shared.clone(), move |s, js| {
         match &mut s.inputs {
             Some(inputs) => {
                 let _ = inputs.offer_joint_state(&js, now());
@@ -348,7 +379,7 @@ fn subscribe(node: &mut Node, nc: &NodeConfig, shared: Arc<Mutex<Shared>>) -> Re
     })?;
     let frames: BTreeMap<String, String> = nc.cameras.iter().map(|c| (NodeConfig::for_camera(&nc.optical_frame, c), c.clone())).collect();
     let world = nc.world_frame.clone();
-    sub::<TfMessage>(node, "/tf_static", "tf2_msgs", "TFMessage", latched_qos(), shared, move |s, tf| {
+    sub::<TfMessage>(&bounded, node, "/tf_static", "tf2_msgs", "TFMessage", latched_qos(), shared, move |s, tf| {
         for t in tf.transforms {
             let Some(cam) = frames.get(&t.child_frame_id) else { continue };
             if t.header.frame_id != world {
@@ -582,6 +613,7 @@ fn tick_loop(config: Config, shared: Arc<Mutex<Shared>>, live: Arc<Mutex<Config>
         stats.images_rejected = inputs.log.images_rejected;
         stats.joint_states_rejected = inputs.log.joint_states_rejected;
         stats.rejections = inputs.rejections.iter().map(|(k, v)| (k.to_string(), *v)).collect();
+        stats.images_accepted = inputs.cameras.iter().map(|f| (f.name.clone(), f.accepted)).collect();
     }
     log(&format!("stopped after {} ticks ({:.1} Hz, {} overruns, {} skipped)", stats.ticks, stats.achieved_rate_hz, stats.overruns, stats.skipped_ticks));
     Ok(stats)

@@ -368,3 +368,34 @@ def test_node_runs_without_camera_info_for_one_camera(recording, ros):
     status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
     assert level(status["pegs: camera cam2"]) == 2 and "no CameraInfo" in status["pegs: camera cam2"].message
     assert level(status["pegs: camera cam0"]) == 0
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmRSS")
+
+
+def test_large_images_are_not_hoarded_by_the_receive_cache(recording, ros):
+    """Each subscription keeps at most its history depth: 60 large depth images (0.9 MB each) sent
+    while the node waits for cameras must not stay in memory (RustDDS's default keeps 64 per topic,
+    which is how a long run grew by the depth and mask images of every recording loop)."""
+    node = rclpy.create_node("pegs_test_cache")
+    proc, stats_path = start_node(recording, "cache")
+    pub = node.create_publisher(Image, "/cam0/depth/image_raw", SENSOR)
+    end = time.time() + 20
+    while time.time() < end and node.count_subscribers("/cam0/depth/image_raw") == 0:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    spin_for(node, 1.0)
+    before = rss_mb(proc.pid)
+    img = Image(height=360, width=640, encoding="32FC1", step=640 * 4, data=bytes(640 * 360 * 4))
+    img.header.frame_id = "cam0_color_optical_frame"
+    for _ in range(60):
+        pub.publish(set_stamp(img, time.time()))
+        spin_for(node, 0.05)
+    spin_for(node, 1.0)
+    grown = rss_mb(proc.pid) - before
+    stop_node(proc, stats_path)
+    node.destroy_node()
+    assert grown < 20, f"the node kept {grown:.0f} MB of 60 depth images"
