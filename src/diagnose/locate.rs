@@ -2,6 +2,8 @@
 //! predicts a short horizon ahead; a start whose prediction misses the tracked state by clearly
 //! more than the tracking noise is a mismatch. Runs of such starts are the mismatch windows,
 //! each with its time span, the table region the object crossed and its contact phase.
+//! Once an effect is named, `explained` keeps the mismatches that effect removes: where the
+//! missing physics acts, apart from misses no effect explains (such as robot contacts).
 
 use super::Sample;
 use super::trace::{Prediction, Trace};
@@ -14,6 +16,8 @@ use serde::Serialize;
 /// Short prediction horizon of the locator, s: long enough for a missing effect to show,
 /// short enough to pin down when and where it acts.
 pub const HORIZON: f64 = 0.2;
+/// A mismatch counts as explained where the named effect cuts its miss to this fraction or less.
+const EXPLAINED: f32 = 2.0 / 3.0;
 /// Errors below this (m) are tracking noise whatever the statistics say.
 pub const MIN_ERROR: f32 = 0.003;
 
@@ -25,6 +29,9 @@ pub struct Mismatch {
     /// The box of table positions (world x, y; m) the object's centre crossed.
     pub region_min: [f32; 2],
     pub region_max: [f32; 2],
+    /// The box of table positions the object's particles covered meanwhile (its footprint).
+    pub footprint_min: [f32; 2],
+    pub footprint_max: [f32; 2],
     /// Contact phase: "sliding", "pushed by the robot", "touching another object" or "at rest".
     pub phase: String,
     /// Largest short-horizon prediction error in the window, mm.
@@ -45,6 +52,25 @@ pub struct Located {
     pub threshold: f32,
     #[serde(skip)]
     pub errors: Vec<(f64, f32)>,
+    /// The predictions behind `errors` (start index and error; no paths).
+    #[serde(skip)]
+    pub predictions: Vec<Prediction>,
+}
+
+/// A start counts as quiet when the tracked object moves less than this over the horizon, m.
+const QUIET_MOTION: f32 = 0.002;
+
+/// Tracking noise of short-horizon predictions: the median error from starts where the tracked
+/// object stays put (no effect on a moving object shows there), or, if it hardly rests, the lower
+/// quartile of all errors. The median of all errors would be the effect itself when it acts for
+/// most of the recording (a tilted table keeps the box sliding).
+fn noise(errors: &[f32], quiet: &[bool]) -> f32 {
+    let quantile = |mut v: Vec<f32>, q: f32| {
+        v.sort_by(f32::total_cmp);
+        v.get(((v.len() as f32 * q) as usize).min(v.len().saturating_sub(1))).copied().unwrap_or(0.0)
+    };
+    let resting: Vec<f32> = errors.iter().zip(quiet).filter(|(_, q)| **q).map(|(e, _)| *e).collect();
+    if resting.len() >= 5 { quantile(resting, 0.5) } else { quantile(errors.to_vec(), 0.25) }
 }
 
 /// Short-horizon predictions from every other tracked state of `object` with `physics`, and the
@@ -56,43 +82,67 @@ pub fn locate(trace: &Trace, physics: &PhysicsConfig, object: ShapeId, samples: 
     // Skip the first `settle` seconds: tracking is still pulling the model onto its start pose.
     let t0 = trace.states.first().map_or(0.0, |s| s.time);
     let starts: Vec<usize> = (0..=last).step_by(2).filter(|&k| trace.states[k].time >= t0 + settle).collect();
-    let predictions = trace.predict(physics, object, &starts, horizon)?;
+    let mut predictions = trace.predict(physics, object, &starts, horizon)?;
+    predictions.iter_mut().for_each(|p| p.path = Vec::new());
     let errors: Vec<(f64, f32)> = predictions.iter().map(|p| (trace.states[p.start].time, p.error)).collect();
-    // Noise: the median error (most of a recording is predicted well) scaled as a robust 3 sigma.
-    let mut sorted: Vec<f32> = errors.iter().map(|e| e.1).collect();
-    sorted.sort_by(f32::total_cmp);
-    let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
-    let threshold = (4.0 * median).max(MIN_ERROR);
+    let quiet: Vec<bool> = predictions
+        .iter()
+        .map(|p| trace.centroid(object, (p.start + horizon).min(trace.states.len() - 1)).distance(trace.centroid(object, p.start)) < QUIET_MOTION)
+        .collect();
+    let values: Vec<f32> = errors.iter().map(|e| e.1).collect();
+    // A robust 3 sigma above the noise.
+    let threshold = (4.0 * noise(&values, &quiet)).max(MIN_ERROR);
+    let windows = runs(trace, object, &predictions, |p| p.error > threshold, samples);
+    Ok(Located { windows, threshold, errors, predictions })
+}
+
+/// Of the mismatches in `located`, the windows that `physics` (the model with a named effect)
+/// explains: starts where the located model missed by more than the threshold and `physics`
+/// misses by at most two thirds as much (an effect such as a shifted centre of mass builds up
+/// over the horizon, so its short-horizon gain is modest).
+pub fn explained(trace: &Trace, located: &Located, physics: &PhysicsConfig, object: ShapeId, samples: &[Sample]) -> Result<Vec<Mismatch>> {
+    let horizon = (HORIZON / trace.dt()).round().max(1.0) as usize;
+    let flagged: Vec<usize> = located.predictions.iter().filter(|p| p.error > located.threshold).map(|p| p.start).collect();
+    let after = trace.predict(physics, object, &flagged, horizon)?;
+    let fixed: std::collections::HashMap<usize, f32> = after.iter().map(|p| (p.start, p.error)).collect();
+    Ok(runs(trace, object, &located.predictions, |p| fixed.get(&p.start).is_some_and(|e| *e <= EXPLAINED * p.error), samples))
+}
+
+/// Windows of at least two consecutive predictions that `flagged` marks.
+fn runs(trace: &Trace, object: ShapeId, predictions: &[Prediction], flagged: impl Fn(&Prediction) -> bool, samples: &[Sample]) -> Vec<Mismatch> {
+    let horizon = (HORIZON / trace.dt()).round().max(1.0) as usize;
     let name = trace.base.shapes.name[object as usize].clone();
     let mut windows = Vec::new();
     let mut run: Vec<&Prediction> = Vec::new();
-    let flush = |run: &mut Vec<&Prediction>, windows: &mut Vec<Mismatch>| {
-        if run.len() >= 2 {
-            windows.push(window(trace, object, &name, run, horizon, samples));
-        }
-        run.clear();
-    };
-    for p in &predictions {
-        if p.error > threshold {
-            run.push(p);
-        } else {
-            flush(&mut run, &mut windows);
+    for p in predictions.iter().map(Some).chain([None]) {
+        match p {
+            Some(p) if flagged(p) => run.push(p),
+            _ => {
+                if run.len() >= 2 {
+                    windows.push(window(trace, object, &name, &run, horizon, samples));
+                }
+                run.clear();
+            }
         }
     }
-    flush(&mut run, &mut windows);
-    Ok(Located { windows, threshold, errors })
+    windows
 }
 
 fn window(trace: &Trace, object: ShapeId, name: &str, run: &[&Prediction], horizon: usize, samples: &[Sample]) -> Mismatch {
     let (first, last) = (run[0].start, run[run.len() - 1].start + horizon);
     let (t_start, t_end) = (trace.states[first].time, trace.states[last.min(trace.states.len() - 1)].time);
     let (mut lo, mut hi) = (Vec2::splat(f32::INFINITY), Vec2::splat(f32::NEG_INFINITY));
+    let (mut foot_lo, mut foot_hi) = (lo, hi);
     // Where the object was when its prediction started to fail: the first half of each horizon.
     for p in run {
         for k in p.start..=(p.start + horizon / 2).min(trace.states.len() - 1) {
             let c = trace.centroid(object, k).truncate();
             lo = lo.min(c);
             hi = hi.max(c);
+            for q in &trace.states[k].position[trace.base.shapes.range(object)] {
+                foot_lo = foot_lo.min(q.truncate());
+                foot_hi = foot_hi.max(q.truncate());
+            }
         }
     }
     let inside: Vec<&Sample> = samples.iter().filter(|s| s.t >= t_start - 1e-9 && s.t <= t_end + 1e-9).collect();
@@ -110,7 +160,27 @@ fn window(trace: &Trace, object: ShapeId, name: &str, run: &[&Prediction], horiz
         t_end,
         region_min: lo.to_array(),
         region_max: hi.to_array(),
+        footprint_min: foot_lo.to_array(),
+        footprint_max: foot_hi.to_array(),
         phase,
         peak_error_mm: run.iter().map(|p| p.error).fold(0.0, f32::max) * 1e3,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn noise_comes_from_resting_starts_so_an_effect_acting_most_of_the_time_is_not_noise() {
+        // Twenty moving starts miss by 3-4 mm (the effect), eight resting ones by 0.1 mm.
+        let mut errors: Vec<f32> = (0..20).map(|i| 0.003 + 0.00005 * i as f32).collect();
+        errors.extend([0.0001; 8]);
+        let quiet: Vec<bool> = (0..28).map(|i| i >= 20).collect();
+        assert!((noise(&errors, &quiet) - 0.0001).abs() < 1e-9);
+        // Without resting starts, the lower quartile.
+        let moving = vec![false; 28];
+        let q = noise(&errors, &moving);
+        assert!(q < 0.0031 && q > 0.0, "{q}");
     }
 }
