@@ -392,10 +392,7 @@ fn refine(trace: &Trace, setting: &Setting, family: Family, value: f32, train: &
     for _ in 0..200 {
         let mut rows = Vec::with_capacity(2 * n);
         for _ in 0..n {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            let w = (state % n as u64) as usize;
+            let w = pick_window(&mut state, n);
             rows.extend([2 * w, 2 * w + 1]);
         }
         let j = nalgebra::DMatrix::from_fn(rows.len(), p.len(), |i, k| jac[(rows[i], k)]);
@@ -412,6 +409,15 @@ fn refine(trace: &Trace, setting: &Setting, family: Family, value: f32, train: &
         return Ok(None);
     }
     Ok(Some(Refined { setting: refined, value, low: picks[(k as f32 * 0.025) as usize], high: picks[((k as f32 * 0.975) as usize).min(k - 1)] }))
+}
+
+/// A window index in `0..n` for bootstrap resampling (xorshift: deterministic, so reports
+/// repeat exactly).
+fn pick_window(state: &mut u64, n: usize) -> usize {
+    *state ^= *state << 13;
+    *state ^= *state >> 7;
+    *state ^= *state << 17;
+    (*state % n as u64) as usize
 }
 
 /// The evaluated parameter with the lowest mean loss, and that loss.
@@ -453,10 +459,7 @@ fn bootstrap_interval(evaluated: &[(f32, Vec<f64>)], resamples: usize, to_x: imp
     for _ in 0..resamples {
         let mut weight = vec![0u32; n];
         for _ in 0..n {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            weight[(state % n as u64) as usize] += 1;
+            weight[pick_window(&mut state, n)] += 1;
         }
         picks.extend(minimum(&weight).map(&from_x));
     }

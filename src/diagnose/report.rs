@@ -105,7 +105,12 @@ impl Report {
                     o.locate_threshold_mm
                 );
             } else {
-                let _ = writeln!(md, "**Locate.** Short open-loop predictions (0.2 s) miss the tracked object by more than {:.1} mm in:\n", o.locate_threshold_mm);
+                let _ = writeln!(
+                    md,
+                    "**Locate.** Short open-loop predictions (0.2 s) miss the tracked object by more than {:.1} mm, and the named effect explains the miss, in the windows below (another {} short deviation(s) it does not explain are listed under `unexplained` in report.json):\n",
+                    o.locate_threshold_mm,
+                    o.unexplained.len()
+                );
                 let _ = writeln!(md, "| from (s) | to (s) | region x (m) | region y (m) | phase | peak error (mm) |\n|---|---|---|---|---|---|");
                 for m in &o.mismatch {
                     let _ = writeln!(

@@ -26,7 +26,7 @@ pub const SECONDS: f64 = 8.5;
 pub fn description(name: &str) -> &'static str {
     match name {
         "concealed_control" => "concealed effects, control: the struck box glides as modelled",
-        "concealed_drag" => "concealed: viscous drag 1.0 N s/m slows the box (strikes at two speeds)",
+        "concealed_drag" => "concealed: viscous drag 1.0 N s/m slows the box (struck at three speeds)",
         "concealed_tilt" => "concealed: the table is tilted 1.0 deg downhill along +x",
         "concealed_tether" => "concealed: an invisible elastic cord (0.8 N/m) ties the box to a point 10 cm behind it",
         "concealed_patch" => "concealed: an invisible patch of friction 0.25 on the slippery table",
