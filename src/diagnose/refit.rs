@@ -223,7 +223,8 @@ fn golden(mut a: f32, mut b: f32, steps: usize, mut f: impl FnMut(f32) -> Result
 
 /// Fit `family` on `train` starts and judge it on `heldout` starts (each predicted `horizon`
 /// ticks). `base_train` / `base_heldout` are the base model's predictions from the same starts.
-/// A constant force's direction, first the mean miss's, is refined after its magnitude.
+/// A constant force's direction and a spring's anchor, first estimated from the base model's
+/// misses, are refined with the parameter (`refine`).
 #[allow(clippy::too_many_arguments)]
 pub fn fit(trace: &Trace, setting: &Setting, family: Family, train: &[usize], heldout: &[usize], horizon: usize, base_train: &[Prediction], base_heldout: &[Prediction]) -> Result<Option<Fit>> {
     let Some((lo, hi, log)) = setting.range(family) else { return Ok(None) };
@@ -387,6 +388,7 @@ fn refine(trace: &Trace, setting: &Setting, family: Family, value: f32, train: &
     let Some((refined, value)) = apply(&p) else { return Ok(None) };
     // Bootstrap over windows (two rows each) of the last step, around the final parameters.
     let n = r.len() / 2;
+    let Ok(full) = jac.clone().svd(true, true).solve(&(-&r), 1e-12) else { return Ok(None) };
     let mut state = 0x9E37_79B9_7F4A_7C15u64;
     let mut picks = Vec::new();
     for _ in 0..200 {
@@ -397,18 +399,21 @@ fn refine(trace: &Trace, setting: &Setting, family: Family, value: f32, train: &
         }
         let j = nalgebra::DMatrix::from_fn(rows.len(), p.len(), |i, k| jac[(rows[i], k)]);
         let y = nalgebra::DVector::from_fn(rows.len(), |i, _| -r[rows[i]]);
-        let full = jac.clone().svd(true, true).solve(&(-&r), 1e-12);
-        if let (Ok(b), Ok(f)) = (j.svd(true, true).solve(&y, 1e-12), full) {
-            let q: Vec<f64> = p.iter().zip(b.iter().zip(f.iter())).map(|(x, (b, f))| x + b - f).collect();
+        if let Ok(b) = j.svd(true, true).solve(&y, 1e-12) {
+            let q: Vec<f64> = p.iter().zip(b.iter().zip(full.iter())).map(|(x, (b, f))| x + b - f).collect();
             picks.extend(value_of(&q));
         }
     }
+    let Some((low, high)) = interval_95(&mut picks) else { return Ok(None) };
+    Ok(Some(Refined { setting: refined, value, low, high }))
+}
+
+/// The 2.5 and 97.5 percentiles of bootstrap estimates, if there are any.
+fn interval_95(picks: &mut [f32]) -> Option<(f32, f32)> {
     picks.sort_by(f32::total_cmp);
     let k = picks.len();
-    if k == 0 {
-        return Ok(None);
-    }
-    Ok(Some(Refined { setting: refined, value, low: picks[(k as f32 * 0.025) as usize], high: picks[((k as f32 * 0.975) as usize).min(k - 1)] }))
+    let at = |q: f32| picks.get(((k as f32 * q) as usize).min(k.saturating_sub(1))).copied();
+    Some((at(0.025)?, at(0.975)?))
 }
 
 /// A window index in `0..n` for bootstrap resampling (xorshift: deterministic, so reports
@@ -463,11 +468,9 @@ fn bootstrap_interval(evaluated: &[(f32, Vec<f64>)], resamples: usize, to_x: imp
         }
         picks.extend(minimum(&weight).map(&from_x));
     }
-    picks.sort_by(f32::total_cmp);
-    let k = picks.len().max(1);
-    let pick = |q: f32| picks.get(((k as f32 * q) as usize).min(k - 1)).copied().unwrap_or(f32::NAN);
+    let (low, high) = interval_95(&mut picks).unwrap_or((f32::NAN, f32::NAN));
     let estimate = from_x(estimate);
-    (estimate, pick(0.025).min(estimate), pick(0.975).max(estimate))
+    (estimate, low.min(estimate), high.max(estimate))
 }
 
 /// Largest centre-of-mass offsets along body x and y that keep every particle's mass positive
