@@ -25,6 +25,10 @@ enum Command {
         /// Simulated seconds.
         #[arg(long, default_value_t = 5.0)]
         seconds: f64,
+        /// Concealed scenario of the diagnosis story (generate, track, diagnose, refit, report;
+        /// a few minutes), or `none` to skip it.
+        #[arg(long, default_value = "concealed_drag")]
+        story: String,
     },
     /// Measure speed; prints JSON with --json.
     Bench {
@@ -282,7 +286,7 @@ fn load_config(path: &Option<PathBuf>) -> Result<Config> {
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
-        Command::Demo { config, out, seconds } => {
+        Command::Demo { config, out, seconds, story } => {
             let config = load_config(&config)?;
             let summary = pegs::demo::run(&config, &out, seconds)?;
             println!(
@@ -296,6 +300,20 @@ fn main() -> Result<()> {
                 );
             }
             println!("wrote trajectory.csv, summary.json, start.png and end.png in {}", out.display());
+            if story != "none" {
+                println!("diagnosis story on {story} (a few minutes)");
+                let v = pegs::demo::story(&out, &story)?;
+                println!(
+                    "  hidden {}, named {}{}; 1 s open-loop error {:.1} -> {:.1} mm; {}",
+                    v.truth,
+                    v.named,
+                    v.estimate.zip(v.truth_value).map_or(String::new(), |(e, t)| format!(" {e:.4} (truth {t:.4})")),
+                    v.open_loop_before_mm,
+                    v.open_loop_after_mm,
+                    if v.passed() { "passed" } else { "failed" }
+                );
+                println!("wrote {}", out.join("story.md").display());
+            }
         }
         Command::Bench { what: BenchTarget::Physics { json, config, ticks, warmup, scene } } => {
             let config = load_config(&config)?;
@@ -413,8 +431,12 @@ fn main() -> Result<()> {
             let config = load_with_model(Some(&config), model.as_deref())?;
             let report = pegs::diagnose::diagnose(&recording, &config, &out, pegs::diagnose::DiagnoseOptions::default())?;
             for o in &report.objects {
+                let driven: Vec<String> = o.unexplained.iter().filter(|m| m.sped_up).map(|m| format!("{:.1}-{:.1} s", m.t_start, m.t_end)).collect();
+                if !driven.is_empty() {
+                    println!("{}: moved by something outside the model (sped up, no modelled contact, unexplained) at {}", o.object, driven.join(", "));
+                }
                 if o.effect == "none" {
-                    println!("{}: no significant missing physics ({} mismatch windows)", o.object, o.mismatch.len());
+                    println!("{}: no significant missing physics in the effect library", o.object);
                     continue;
                 }
                 let params: Vec<String> = o.parameters.iter().map(|p| format!("{} {:.4} {}", p.name, p.value, p.unit)).collect();

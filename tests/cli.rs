@@ -15,7 +15,7 @@ fn temp_dir(name: &str) -> std::path::PathBuf {
 
 fn run_demo(out: &Path) -> String {
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/pegs.yaml");
-    let o = pegs().args(["demo", "--seconds", "4", "--config"]).arg(&config).arg("--out").arg(out).output().unwrap();
+    let o = pegs().args(["demo", "--seconds", "4", "--story", "none", "--config"]).arg(&config).arg("--out").arg(out).output().unwrap();
     assert!(o.status.success(), "demo failed: {}", String::from_utf8_lossy(&o.stderr));
     std::fs::read_to_string(out.join("trajectory.csv")).unwrap()
 }

@@ -7,7 +7,9 @@
 //! fail (`locate`); explain the corrective forces by sparse regression over candidate effects
 //! with held-out validation (`candidates`, `select`); fit each candidate family's physical
 //! parameter by open-loop simulation and name the one that cuts the held-out prediction error
-//! (`refit`); rerun with the augmented model and report before / after (`report`, `plots`).
+//! (`refit`); fit the named effect again on a replay tracked with it (tracking with a model that
+//! lacks an effect lags what it does); rerun with the augmented model and report before / after
+//! (`report`, `plots`).
 //! Diagnose never changes the tracker; it only replays with different physics.
 
 pub mod candidates;

@@ -10,7 +10,6 @@ use crate::config::{Config, ModelFile};
 use crate::replay::{self, Metrics, ReplayOptions};
 use crate::world::ShapeId;
 use anyhow::{Context, Result};
-use glam::Vec2;
 use std::path::Path;
 
 #[derive(Clone, Copy, Debug)]
@@ -56,7 +55,7 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
     let t_last = trace.states.last().map_or(0.0, |s| s.time);
     let cut = t_first + opts.train_fraction * (t_last - t_first);
     let shapes: Vec<ShapeId> = trace.base.shapes.dynamic_ids().collect();
-    let mut studies = Vec::new();
+    let mut studies: Vec<Study> = Vec::new();
     let mut effects = Vec::new();
     for &shape in &shapes {
         let name = trace.base.shapes.name[shape as usize].clone();
@@ -86,14 +85,8 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
         let train: Vec<usize> = base_train.iter().map(|p| p.start).collect();
         let heldout: Vec<usize> = base_heldout.iter().map(|p| p.start).collect();
         let (force_direction, anchor) = refit::directions(trace, shape, &base_train);
-        // A friction patch lies where the object slid and the model missed (robot pushes are no
-        // place on the table): the footprint of its particles there.
-        let region = located
-            .windows
-            .iter()
-            .filter(|w| w.phase == "sliding")
-            .map(|w| (Vec2::from(w.footprint_min), Vec2::from(w.footprint_max)))
-            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)));
+        // A friction patch can only be found where the object slid in the fitting windows.
+        let region = refit::footprint(trace, shape, &train, horizon);
         let setting = Setting {
             object: name.clone(),
             shape,
@@ -132,7 +125,42 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
             effects.push(e);
         }
         let regression = select::select(&mine, &candidates::ALL, SelectOptions { train_fraction: opts.train_fraction, ..Default::default() });
-        studies.push(Study { shape, name, samples: mine, located, explained, train, heldout, setting, fits, chosen, regression, base_heldout });
+        studies.push(Study { shape, name, samples: mine, located, explained, train, heldout, setting, fits, chosen, refined_from: None, regression, base_heldout });
+    }
+    // Model: the named terms' parameters refined on a replay tracked with them. Tracking with a
+    // model that lacks the effect lags what the effect does (the visual forces pull the object
+    // after it), and a parameter fitted to that lag inherits it; with the effect in the model the
+    // tracked motion is closer to the truth.
+    if !effects.is_empty() {
+        say(format!("replaying with the named effect(s) to refine their parameters ({})", effects.len()));
+        let named = ModelFile { source: String::new(), effects: effects.clone() };
+        let run = replay::run(recording, &named.apply(config), &out.join("named"), ReplayOptions { progress: opts.progress, capture: true, ..Default::default() })?;
+        let retraced = run.trace.as_ref().context("replay kept no trace")?;
+        effects.clear();
+        for study in studies.iter_mut() {
+            let Some(named) = study.chosen.clone() else { continue };
+            let Some(family) = named.family else { continue };
+            say(format!("{}: refining {}", study.name, family.name()));
+            let base_train = retraced.predict(&study.setting.base, study.shape, &study.train, horizon)?;
+            let base_heldout = retraced.predict(&study.setting.base, study.shape, &study.heldout, horizon)?;
+            let (direction, anchor) = refit::directions(retraced, study.shape, &base_train);
+            let setting = Setting {
+                force_direction: direction.or(study.setting.force_direction),
+                anchor: anchor.or(study.setting.anchor),
+                region: refit::footprint(retraced, study.shape, &study.train, horizon).or(study.setting.region),
+                ..study.setting.clone()
+            };
+            let refined = refit::fit(retraced, &setting, family, &study.train, &study.heldout, horizon, &base_train, &base_heldout)?;
+            let kept = match refined {
+                Some(f) if f.effect_term.is_some() => {
+                    study.refined_from = Some(named);
+                    f
+                }
+                _ => named,
+            };
+            effects.extend(kept.effect_term.clone());
+            study.chosen = Some(kept);
+        }
     }
     let model = ModelFile { source: format!("pegs diagnose {}", recording.display()), effects };
     let model_path = out.join("model.yaml");
@@ -210,7 +238,10 @@ struct Study {
     heldout: Vec<usize>,
     setting: Setting,
     fits: Vec<Fit>,
+    /// The named family's fit: refined on the replay with the named effects when that worked.
     chosen: Option<Fit>,
+    /// The fit that named it, on the first replay (when `chosen` was refined).
+    refined_from: Option<Fit>,
     regression: select::Selection,
     base_heldout: Vec<Prediction>,
 }
@@ -271,8 +302,8 @@ fn object_report(study: Study, before: Outcome, after: Outcome, cut: f64, train_
                 }
             }
             Some(Family::FrictionPatch) => {
-                if let Some((lo, hi)) = s.region {
-                    let (c, h): (Vec2, Vec2) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+                // The placed patch (see `refit::place_patch`).
+                if let Some(crate::physics::Effect::FrictionPatch { center: c, half_size: h, .. }) = &f.effect_term {
                     for (n, v) in [("center_x", c.x), ("center_y", c.y), ("half_size_x", h.x), ("half_size_y", h.y)] {
                         parameters.push(fixed(n, v, "m"));
                     }
@@ -294,7 +325,9 @@ fn object_report(study: Study, before: Outcome, after: Outcome, cut: f64, train_
         mismatch: study.explained,
         effect: study.chosen.as_ref().map_or("none".into(), |f| f.effect.clone()),
         parameters,
-        explained_fraction: study.chosen.as_ref().map_or(0.0, |f| f.heldout_gain()),
+        // How much the effect explains is judged where it was named.
+        explained_fraction: study.refined_from.as_ref().or(study.chosen.as_ref()).map_or(0.0, |f| f.heldout_gain()),
+        named_fit: study.refined_from,
         residual_explained_fraction,
         heldout_from: cut,
         train_windows: study.train.len(),

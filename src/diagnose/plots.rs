@@ -92,6 +92,11 @@ fn feature(family: Option<Family>, setting: &Setting, s: &Sample) -> (f64, f64) 
         }
         Some(Family::MassScale) => (s.acceleration.truncate().length() as f64, if s.acceleration.length() > 1e-6 { -f.dot(s.acceleration.truncate().normalize()) as f64 } else { 0.0 }),
         Some(Family::AngularDamping | Family::CenterOfMass(_)) => (s.angular_velocity.z as f64, s.torque.z as f64),
+        // Where the object is along the direction it slid (the longer side of the slid-over area).
+        Some(Family::FrictionPatch) => {
+            let axis = setting.region.map_or(0, |(lo, hi)| if hi.x - lo.x >= hi.y - lo.y { 0 } else { 1 });
+            (s.position[axis] as f64, against_motion as f64)
+        }
         _ => (v.length() as f64, against_motion as f64),
     }
 }
@@ -102,6 +107,7 @@ fn feature_labels(family: Option<Family>) -> (&'static str, &'static str) {
         Some(Family::Spring) => ("distance from the fitted anchor (m)", "corrective force towards the anchor (N)"),
         Some(Family::MassScale) => ("acceleration (m/s^2)", "corrective force against it (N)"),
         Some(Family::AngularDamping | Family::CenterOfMass(_)) => ("angular velocity (rad/s)", "corrective torque (N m)"),
+        Some(Family::FrictionPatch) => ("position along the slide, world x or y (m)", "corrective force against the motion (N)"),
         _ => ("speed (m/s)", "corrective force against the motion (N)"),
     }
 }

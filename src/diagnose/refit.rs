@@ -92,7 +92,8 @@ pub struct Setting {
     pub force_direction: Option<Vec3>,
     /// Anchor of a spring that would explain the displacement errors, if one would.
     pub anchor: Option<Vec3>,
-    /// Table region of the located mismatches.
+    /// The table area (x, y box) the object's particles covered in the fitting windows; a
+    /// friction patch is placed inside it (`place_patch`).
     pub region: Option<(Vec2, Vec2)>,
     /// Largest centre-of-mass offset along body x and y that keeps every particle's mass positive.
     pub com_limit: [f32; 2],
@@ -189,6 +190,25 @@ fn mean_square(p: &[Prediction]) -> f64 {
     p.iter().map(|p| (p.error as f64).powi(2)).sum::<f64>() / p.len().max(1) as f64
 }
 
+/// Per window and tick, the tracked minus the predicted centre of mass (x, y), m.
+fn path_misses(trace: &Trace, shape: ShapeId, p: &[Prediction]) -> Option<Vec<f64>> {
+    let mut out = Vec::new();
+    for p in p {
+        for (i, q) in p.path.iter().enumerate() {
+            let miss = trace.centroid(shape, (p.start + i).min(trace.states.len() - 1)) - *q;
+            out.extend([miss.x as f64, miss.y as f64]);
+        }
+    }
+    Some(out)
+}
+
+/// Mean over windows and ticks of the squared distance between the predicted and the tracked
+/// centre of mass, m^2.
+fn path_mean_square(trace: &Trace, shape: ShapeId, p: &[Prediction]) -> f64 {
+    let m = path_misses(trace, shape, p).unwrap_or_default();
+    m.iter().map(|x| x * x).sum::<f64>() / (m.len() / 2).max(1) as f64
+}
+
 /// Grid points of a family's parameter range, before the golden-section refinement.
 const GRID: usize = 7;
 /// A family whose best grid point removes less than this fraction of the training error is not
@@ -227,6 +247,11 @@ fn golden(mut a: f32, mut b: f32, steps: usize, mut f: impl FnMut(f32) -> Result
 /// misses, are refined with the parameter (`refine`).
 #[allow(clippy::too_many_arguments)]
 pub fn fit(trace: &Trace, setting: &Setting, family: Family, train: &[usize], heldout: &[usize], horizon: usize, base_train: &[Prediction], base_heldout: &[Prediction]) -> Result<Option<Fit>> {
+    let mut setting = setting.clone();
+    if family == Family::FrictionPatch {
+        setting.region = place_patch(trace, &setting, train, horizon);
+    }
+    let setting = &setting;
     let Some((lo, hi, log)) = setting.range(family) else { return Ok(None) };
     let to_x = |v: f32| if log { v.ln() } else { v };
     let from_x = |x: f32| if log { x.exp() } else { x };
@@ -302,6 +327,85 @@ pub fn fit(trace: &Trace, setting: &Setting, family: Family, train: &[usize], he
     }))
 }
 
+/// Patch friction values tried while placing a patch.
+const PATCH_FRICTION: [f32; 4] = [0.0, 0.15, 0.3, 0.6];
+/// Edges tried across the slid-over area (interior points of this many equal cells).
+const PATCH_CELLS: usize = 7;
+/// Gauss-Newton iterations of the patch's edge and friction.
+const PATCH_STEPS: usize = 6;
+
+/// Where a friction patch lies: the slid-over area `setting.region` cut by an edge across its
+/// longer side (the direction the object slid), keeping the part beyond or before the edge, or
+/// the whole area. Friction and edge are fitted on the training windows: the friction on the
+/// whole area, the edge over a grid at that friction, then both together by Gauss-Newton. A
+/// patch is known only where the object went: across its motion it spans the slid-over area.
+///
+/// The loss here is the miss along the whole predicted path, not only at its end: where a window
+/// ends at rest, an earlier edge with less friction stops the object at the same place, and only
+/// when it slows down tells them apart.
+fn place_patch(trace: &Trace, setting: &Setting, train: &[usize], horizon: usize) -> Option<(Vec2, Vec2)> {
+    let (lo, hi) = setting.region?;
+    let axis = if hi.x - lo.x >= hi.y - lo.y { 0 } else { 1 };
+    let loss = |region: (Vec2, Vec2), friction: f32| -> f64 {
+        let mut s = setting.clone();
+        s.region = Some(region);
+        s.physics(Family::FrictionPatch, friction)
+            .and_then(|p| trace.predict(&p, setting.shape, train, horizon).ok())
+            .map_or(f64::INFINITY, |p| path_mean_square(trace, setting.shape, &p))
+    };
+    // `beyond`: the patch is the part past the edge (higher coordinate), else the part before it.
+    let cut = |edge: f32, beyond: bool| {
+        let (mut a, mut b) = (lo, hi);
+        if beyond {
+            a[axis] = edge;
+        } else {
+            b[axis] = edge;
+        }
+        (a, b)
+    };
+    let best_friction = |region| PATCH_FRICTION.iter().map(|&f| (f, loss(region, f))).min_by(|a, b| a.1.total_cmp(&b.1)).map(|x| x.0);
+    let friction = best_friction((lo, hi))?;
+    let cell = (hi[axis] - lo[axis]) / PATCH_CELLS as f32;
+    let mut best = ((lo, hi), None, loss((lo, hi), friction));
+    for i in 1..PATCH_CELLS {
+        let edge = lo[axis] + cell * i as f32;
+        for beyond in [false, true] {
+            let l = loss(cut(edge, beyond), friction);
+            if l < best.2 {
+                best = (cut(edge, beyond), Some((edge, beyond)), l);
+            }
+        }
+    }
+    let Some((edge, beyond)) = best.1 else { return Some(best.0) };
+    // A patch no better than the plain table (friction as modelled) is not worth refining.
+    let plain = loss((lo, hi), setting.base.ground.kinetic_friction);
+    if best.2 > (1.0 - HOPELESS_GAIN) * plain {
+        return Some(best.0);
+    }
+    // Friction and edge trade off (an earlier edge with less friction stops the object nearly as
+    // well), a long curved valley: Gauss-Newton on both together.
+    let misses = |q: &[f64]| {
+        let mut s = setting.clone();
+        s.region = Some(cut(q[0] as f32, beyond));
+        let physics = s.physics(Family::FrictionPatch, q[1] as f32).filter(|_| q[1] >= 0.0)?;
+        path_misses(trace, setting.shape, &trace.predict(&physics, setting.shape, train, horizon).ok()?)
+    };
+    let (q, _) = gauss_newton(&[edge as f64, friction as f64], &[0.003, 0.01], PATCH_STEPS, misses)?;
+    Some(cut(q[0] as f32, beyond))
+}
+
+/// The x, y box that `object`'s particles covered from each start in `starts` to `horizon` ticks
+/// later, as tracked.
+pub fn footprint(trace: &Trace, object: ShapeId, starts: &[usize], horizon: usize) -> Option<(Vec2, Vec2)> {
+    let range = trace.base.shapes.range(object);
+    starts
+        .iter()
+        .flat_map(|&k| k..=(k + horizon).min(trace.states.len() - 1))
+        .flat_map(|k| trace.states[k].position[range.clone()].iter().map(|p| p.truncate()))
+        .map(|p| (p, p))
+        .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+}
+
 /// A family refined beyond its one parameter (see `refine`).
 struct Refined {
     setting: Setting,
@@ -329,7 +433,7 @@ fn misses(trace: &Trace, physics: &PhysicsConfig, shape: ShapeId, starts: &[usiz
 /// one-parameter fit. The interval is a bootstrap over windows of the last linearised step.
 fn refine(trace: &Trace, setting: &Setting, family: Family, value: f32, train: &[usize], horizon: usize) -> Result<Option<Refined>> {
     // The parameters, their finite-difference steps, and the setting + value they stand for.
-    let (mut p, steps): (Vec<f64>, Vec<f64>) = match (family, setting.force_direction, setting.anchor) {
+    let (p, steps): (Vec<f64>, Vec<f64>) = match (family, setting.force_direction, setting.anchor) {
         (Family::ConstantForce, Some(d), _) => (vec![(d.x * value) as f64, (d.y * value) as f64], vec![0.1 * value.max(1e-3) as f64; 2]),
         (Family::Spring, _, Some(a)) => (vec![value as f64, a.x as f64, a.y as f64], vec![0.1 * value.max(1e-3) as f64, 0.01, 0.01]),
         _ => return Ok(None),
@@ -351,39 +455,7 @@ fn refine(trace: &Trace, setting: &Setting, family: Family, value: f32, train: &
     };
     let residual = |p: &[f64]| apply(p).and_then(|(s, v)| s.physics(family, v)).and_then(|physics| misses(trace, &physics, setting.shape, train, horizon));
     let value_of = |p: &[f64]| apply(p).map(|x| x.1);
-    let norm = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
-    let Some(mut r_now) = residual(&p) else { return Ok(None) };
-    let mut last: Option<(nalgebra::DMatrix<f64>, nalgebra::DVector<f64>)> = None;
-    for _ in 0..REFINE_STEPS {
-        let mut columns = Vec::new();
-        for (j, h) in steps.iter().enumerate() {
-            let mut q = p.clone();
-            q[j] += h;
-            let Some(r) = residual(&q) else { return Ok(None) };
-            columns.push(r.iter().zip(&r_now).map(|(a, b)| (a - b) / h).collect::<Vec<f64>>());
-        }
-        let jac = nalgebra::DMatrix::from_fn(r_now.len(), p.len(), |i, j| columns[j][i]);
-        let r = nalgebra::DVector::from_vec(r_now.clone());
-        // The residual is tracked - predicted: a step that moves the prediction by -r.
-        let Ok(step) = jac.clone().svd(true, true).solve(&(-&r), 1e-12) else { break };
-        last = Some((jac, r));
-        // Stick and slip make the misses far from linear: a step is taken only if it lowers
-        // them, halved until it does.
-        let mut accepted = false;
-        for halving in 0..4 {
-            let scale = 0.5f64.powi(halving);
-            let q: Vec<f64> = p.iter().zip(step.iter()).map(|(x, d)| x + scale * d).collect();
-            if let Some(r) = residual(&q)
-                && norm(&r) < norm(&r_now)
-            {
-                (p, r_now, accepted) = (q, r, true);
-                break;
-            }
-        }
-        if !accepted {
-            break;
-        }
-    }
+    let Some((p, last)) = gauss_newton(&p, &steps, REFINE_STEPS, residual) else { return Ok(None) };
     let Some((jac, r)) = last else { return Ok(None) };
     let Some((refined, value)) = apply(&p) else { return Ok(None) };
     // Bootstrap over windows (two rows each) of the last step, around the final parameters.
@@ -406,6 +478,50 @@ fn refine(trace: &Trace, setting: &Setting, family: Family, value: f32, train: &
     }
     let Some((low, high)) = interval_95(&mut picks) else { return Ok(None) };
     Ok(Some(Refined { setting: refined, value, low, high }))
+}
+
+/// The Jacobian and residual of a Gauss-Newton step.
+type Linearised = (nalgebra::DMatrix<f64>, nalgebra::DVector<f64>);
+
+/// Gauss-Newton on `residual` (tracked - predicted) from `p`, with forward-difference steps
+/// `steps`, for at most `iterations` steps. Stick and slip make the residual far from linear: a
+/// step is taken only if it lowers the sum of squares, halved until it does. Returns the final
+/// parameters and the last linearisation (None if no step was tried), or None if the residual
+/// cannot be evaluated at the start.
+fn gauss_newton(p: &[f64], steps: &[f64], iterations: usize, residual: impl Fn(&[f64]) -> Option<Vec<f64>>) -> Option<(Vec<f64>, Option<Linearised>)> {
+    let norm = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
+    let mut p = p.to_vec();
+    let mut r_now = residual(&p)?;
+    let mut last = None;
+    for _ in 0..iterations {
+        let mut columns = Vec::new();
+        for (j, h) in steps.iter().enumerate() {
+            let mut q = p.clone();
+            q[j] += h;
+            let Some(r) = residual(&q) else { return Some((p, last)) };
+            columns.push(r.iter().zip(&r_now).map(|(a, b)| (a - b) / h).collect::<Vec<f64>>());
+        }
+        let jac = nalgebra::DMatrix::from_fn(r_now.len(), p.len(), |i, j| columns[j][i]);
+        let r = nalgebra::DVector::from_vec(r_now.clone());
+        // A step that moves the prediction by -r.
+        let Ok(step) = jac.clone().svd(true, true).solve(&(-&r), 1e-12) else { break };
+        last = Some((jac, r));
+        let mut accepted = false;
+        for halving in 0..4 {
+            let scale = 0.5f64.powi(halving);
+            let q: Vec<f64> = p.iter().zip(step.iter()).map(|(x, d)| x + scale * d).collect();
+            if let Some(r) = residual(&q)
+                && norm(&r) < norm(&r_now)
+            {
+                (p, r_now, accepted) = (q, r, true);
+                break;
+            }
+        }
+        if !accepted {
+            break;
+        }
+    }
+    Some((p, last))
 }
 
 /// The 2.5 and 97.5 percentiles of bootstrap estimates, if there are any.
@@ -532,10 +648,9 @@ fn spring_anchor(rows: &[(Vec2, Vec2)]) -> Option<Vec2> {
 mod tests {
     use super::*;
 
-    /// A box pushed about on a slippery table by a hidden constant force, traced by the true
-    /// physics; the model starts from a direction 25 degrees off and half the magnitude.
-    #[test]
-    fn gauss_newton_recovers_a_constant_forces_direction_and_magnitude() {
+    /// A 0.2 kg box on a slippery table (the base physics), kicked to `kicks[0]` at tick 0 and to
+    /// `kicks[1]` at tick 75, traced for 150 ticks by the base physics plus `hidden`.
+    fn kicked_box(hidden: Effect, kicks: [Vec3; 2]) -> (Trace, ShapeId) {
         use crate::math::Pose;
         use crate::scene::{WorldBuilder, box_lattice};
         let mut b = WorldBuilder::new();
@@ -545,30 +660,61 @@ mod tests {
         let mut base = PhysicsConfig::default();
         base.ground.static_friction = 0.04;
         base.ground.kinetic_friction = 0.03;
-        let force = Vec3::new(0.03, 0.017, 0.0); // 0.0345 N at 30 degrees
         let mut truth = base.clone();
-        truth.effects = vec![Effect::ConstantForce { object: Some("box".into()), force }];
-        let mut trace = Trace { base: world.clone(), physics: base.clone(), robot: None, states: vec![super::super::trace::State::of(&world)] };
+        truth.effects = vec![hidden];
+        let mut trace = Trace { base: world.clone(), physics: base, robot: None, states: vec![super::super::trace::State::of(&world)] };
         let mut solver = crate::physics::Solver::new(truth, &world).unwrap();
         for k in 0..150 {
-            // Kicks at 0 s and 2.5 s keep it sliding.
             if k == 0 || k == 75 {
-                let v = if k == 0 { Vec3::new(0.3, -0.2, 0.0) } else { Vec3::new(-0.35, 0.1, 0.0) };
-                world.shapes.range(shape).for_each(|i| world.particles.velocity[i] = v);
+                world.shapes.range(shape).for_each(|i| world.particles.velocity[i] = kicks[k / 75]);
             }
             solver.step(&mut world).unwrap();
             trace.states.push(super::super::trace::State::of(&world));
         }
+        (trace, shape)
+    }
+
+    /// Windows whose start velocity (differenced over two ticks each way) does not span a kick
+    /// (the physics cannot predict a kick).
+    fn between_kicks() -> Vec<usize> {
+        (3..=44).step_by(4).chain((78..=119).step_by(4)).collect()
+    }
+
+    /// A box pushed about on a slippery table by a hidden constant force, traced by the true
+    /// physics; the model starts from a direction 25 degrees off and half the magnitude.
+    #[test]
+    fn gauss_newton_recovers_a_constant_forces_direction_and_magnitude() {
+        let force = Vec3::new(0.03, 0.017, 0.0); // 0.0345 N at 30 degrees
+        let (trace, shape) = kicked_box(Effect::ConstantForce { object: Some("box".into()), force }, [Vec3::new(0.3, -0.2, 0.0), Vec3::new(-0.35, 0.1, 0.0)]);
         let guess = glam::Quat::from_rotation_z(25f32.to_radians()) * force.normalize();
-        let setting = Setting { object: "box".into(), shape, mass: 0.2, base, force_direction: Some(guess), anchor: None, region: None, com_limit: [0.0; 2] };
-        // Windows that do not cross the second kick (the physics cannot predict a kick).
-        let train: Vec<usize> = (3..=44).step_by(4).chain((78..=119).step_by(4)).collect();
-        let refined = refine(&trace, &setting, Family::ConstantForce, 0.5 * force.length(), &train, 30).unwrap().unwrap();
+        let setting = Setting { object: "box".into(), shape, mass: 0.2, base: trace.physics.clone(), force_direction: Some(guess), anchor: None, region: None, com_limit: [0.0; 2] };
+        let refined = refine(&trace, &setting, Family::ConstantForce, 0.5 * force.length(), &between_kicks(), 30).unwrap().unwrap();
         let d = refined.setting.force_direction.unwrap();
         let angle = d.angle_between(force.normalize()).to_degrees();
         assert!(angle < 4.0, "direction off by {angle} degrees");
         assert!((refined.value - force.length()).abs() < 0.15 * force.length(), "{} vs {}", refined.value, force.length());
         assert!(refined.low <= refined.value && refined.value <= refined.high);
+    }
+
+    /// A box kicked along +x on a slippery table slides onto a patch of grippy table (x > 0.12)
+    /// and stops there; kicked back, it leaves the patch and glides on. The patch is placed from
+    /// the table area it slid over.
+    #[test]
+    fn a_friction_patch_is_placed_at_its_edge_with_its_friction() {
+        let (center, half_size) = (Vec2::new(0.22, 0.0), Vec2::new(0.1, 0.2));
+        let patch = Effect::FrictionPatch { center, half_size, static_friction: 0.2, kinetic_friction: 0.2 };
+        let (trace, shape) = kicked_box(patch, [Vec3::new(0.45, 0.0, 0.0), Vec3::new(-0.4, 0.0, 0.0)]);
+        let train = between_kicks();
+        let region = footprint(&trace, shape, &train, 30);
+        let setting = Setting { object: "box".into(), shape, mass: 0.2, base: trace.physics.clone(), force_direction: None, anchor: None, region, com_limit: [0.0; 2] };
+        let base_train = trace.predict(&setting.base, shape, &train, 30).unwrap();
+        let fit = fit(&trace, &setting, Family::FrictionPatch, &train, &train, 30, &base_train, &base_train).unwrap().unwrap();
+        let Some(Effect::FrictionPatch { center, half_size, .. }) = fit.effect_term else { panic!("{fit:?}") };
+        let (lo, hi) = (center - half_size, center + half_size);
+        // The patch starts where the true one does and lies beyond it, within the slid-over area.
+        assert!((lo.x - 0.12).abs() < 0.01, "edge at {} (truth 0.12)", lo.x);
+        assert!(hi.x > 0.13 && hi.x <= region.unwrap().1.x + 1e-4, "{lo} {hi}");
+        assert!((fit.value - 0.2).abs() < 0.03 && fit.train_gain() > 0.9, "{fit:?}");
     }
 
     #[test]

@@ -52,6 +52,9 @@ pub struct ObjectReport {
     pub heldout_windows: usize,
     /// Every candidate family fitted, best held-out gain first.
     pub candidates: Vec<Fit>,
+    /// The named family's fit on the replay with the current model, before its parameters were
+    /// refined on a replay tracked with the named effect (`parameters` are the refined ones).
+    pub named_fit: Option<Fit>,
     /// The sparse regression of the corrective forces on the candidate effects.
     pub regression: Selection,
     pub before: Outcome,
@@ -121,6 +124,18 @@ impl Report {
                 }
                 md.push('\n');
             }
+            let driven: Vec<&Mismatch> = o.unexplained.iter().filter(|m| m.sped_up).collect();
+            if !driven.is_empty() {
+                let _ = writeln!(
+                    md,
+                    "Moved by something outside the model: in these unexplained windows the object sped up with no modelled body touching it (an unmodelled push or agent; no candidate effect explains it):\n"
+                );
+                let _ = writeln!(md, "| from (s) | to (s) | region x (m) | region y (m) | peak error (mm) |\n|---|---|---|---|---|");
+                for m in driven {
+                    let _ = writeln!(md, "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {:.1} |", m.t_start, m.t_end, m.region_min[0], m.region_max[0], m.region_min[1], m.region_max[1], m.peak_error_mm);
+                }
+                md.push('\n');
+            }
             if o.effect == "none" {
                 let _ = writeln!(md, "**Name.** No significant missing physics: no candidate effect cuts the held-out 1 s prediction error enough.\n");
             } else {
@@ -138,6 +153,13 @@ impl Report {
                     let _ = write!(md, " and explains {:.0} % of the held-out corrective force", f * 100.0);
                 }
                 md.push_str(".\n\n");
+                if let Some(n) = &o.named_fit {
+                    let _ = writeln!(
+                        md,
+                        "**Model.** Fitted first on the replay with the current model: {} = {:.4} {} ({:.4} .. {:.4}); refined on a replay tracked with the effect added (tracking with a model that lacks an effect lags what it does).\n",
+                        n.parameter, n.value, n.unit, n.low, n.high
+                    );
+                }
             }
             let _ = writeln!(md, "Candidates (fitted open loop on {} windows before {:.2} s, judged on {} after):\n", o.train_windows, o.heldout_from, o.heldout_windows);
             let _ = writeln!(md, "| effect | parameter | value | 95 % interval | fit gain | held-out gain |\n|---|---|---|---|---|---|");

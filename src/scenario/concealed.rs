@@ -29,7 +29,7 @@ pub fn description(name: &str) -> &'static str {
         "concealed_drag" => "concealed: viscous drag 1.0 N s/m slows the box (struck at three speeds)",
         "concealed_tilt" => "concealed: the table is tilted 1.0 deg downhill along +x",
         "concealed_tether" => "concealed: an invisible elastic cord (0.8 N/m) ties the box to a point 10 cm behind it",
-        "concealed_patch" => "concealed: an invisible patch of friction 0.25 on the slippery table",
+        "concealed_patch" => "concealed: an invisible patch of friction 0.15 on the slippery table (0.03)",
         "concealed_weight" => "concealed: a hidden weight moves the box's centre of mass 1.5 cm along its length",
         _ => "",
     }
@@ -87,11 +87,15 @@ pub fn truth(name: &str) -> HiddenTruth {
             region: None,
         },
         "concealed_patch" => {
-            let (center, half_size) = (Vec2::new(0.5, 0.04), Vec2::new(0.12, 0.04));
+            // Across the first strike's glide: the box slides 8 cm on the slippery table before its
+            // leading edge reaches the patch, and far enough onto it to slow at the patch's full
+            // friction (only then are friction and edge told apart); the second strike sends it
+            // back off the patch.
+            let (center, half_size) = (Vec2::new(0.5, 0.15), Vec2::new(0.15, 0.08));
             HiddenTruth {
-                effects: vec![Effect::FrictionPatch { center, half_size, static_friction: 0.25, kinetic_friction: 0.25 }],
+                effects: vec![Effect::FrictionPatch { center, half_size, static_friction: 0.15, kinetic_friction: 0.15 }],
                 effect: Some("friction_patch"),
-                parameter: Some(("friction", 0.25)),
+                parameter: Some(("friction", 0.15)),
                 region: Some((center, half_size)),
             }
         }
@@ -127,7 +131,11 @@ struct Strike {
 }
 
 fn strikes(name: &str) -> Vec<Strike> {
-    let (s1, s2, s3) = if name == "concealed_drag" { (0.45, 0.3, 0.38) } else { (0.35, 0.25, 0.3) };
+    let (s1, s2, s3) = match name {
+        "concealed_drag" => (0.45, 0.3, 0.38),
+        "concealed_patch" => (0.5, 0.3, 0.45),
+        _ => (0.35, 0.25, 0.3),
+    };
     // The third strike falls in the held-out part of a diagnosis (the last 30 %), so what was
     // fitted on the first two is judged on a motion it has not seen.
     vec![

@@ -8,6 +8,7 @@ use crate::diagnose::report::{ObjectReport, Report};
 use crate::diagnose::{DiagnoseOptions, diagnose};
 use anyhow::{Context, Result};
 use serde::Serialize;
+use glam::Vec2;
 use std::path::Path;
 
 pub const START: &str = "<!-- concealed-table:start -->";
@@ -52,12 +53,18 @@ pub fn judge(name: &str, report: &Report) -> Verdict {
     };
     let windows: Vec<(f64, f64)> = object.map_or(Vec::new(), |o| o.mismatch.iter().map(|m| (m.t_start, m.t_end)).collect());
     let region_ok = truth.region.map(|(c, h)| {
-        // The located region's centre lies in the true patch (its edge blurred by the box's size).
-        object.is_some_and(|o| o.mismatch.iter().any(|m| {
-            let (lo, hi) = m.region();
-            let centre = (lo + hi) * 0.5;
-            ((centre - c).abs() - h).max_element() < 0.03
-        }))
+        // The placed patch: at least half of it is truly patch (it is known only where the box
+        // went, so it may be smaller than the truth), and every located mismatch reaches into it.
+        let fitted = |n: &str| object.and_then(|o| o.parameters.iter().find(|p| p.name == n)).map(|p| p.value);
+        let (Some(cx), Some(cy), Some(hx), Some(hy)) = (fitted("center_x"), fitted("center_y"), fitted("half_size_x"), fitted("half_size_y")) else { return false };
+        let (lo, hi) = (Vec2::new(cx - hx, cy - hy), Vec2::new(cx + hx, cy + hy));
+        let overlap = (hi.min(c + h) - lo.max(c - h)).max(Vec2::ZERO);
+        let inside = overlap.x * overlap.y >= 0.5 * (hi - lo).x * (hi - lo).y;
+        let reached = object.is_some_and(|o| o.mismatch.iter().all(|m| {
+            let (a, b) = (Vec2::from(m.footprint_min), Vec2::from(m.footprint_max));
+            (b.min(hi) - a.max(lo)).min_element() > 0.0
+        }));
+        inside && reached
     });
     let (before, after) = object.map_or((0.0, 0.0), |o| (o.before.open_loop_error_mm, o.after.open_loop_error_mm));
     let right_effect = named == truth.effect.unwrap_or("none");
