@@ -134,6 +134,7 @@ fn strikes(name: &str) -> Vec<Strike> {
     let (s1, s2, s3) = match name {
         "concealed_drag" => (0.45, 0.3, 0.38),
         "concealed_patch" => (0.5, 0.3, 0.45),
+        "concealed_weight" => (0.45, 0.3, 0.4),
         _ => (0.35, 0.25, 0.3),
     };
     // The third strike falls in the held-out part of a diagnosis (the last 30 %), so what was
