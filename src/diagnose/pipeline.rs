@@ -55,13 +55,18 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
     let t_last = trace.states.last().map_or(0.0, |s| s.time);
     let cut = t_first + opts.train_fraction * (t_last - t_first);
     let shapes: Vec<ShapeId> = trace.base.shapes.dynamic_ids().collect();
-    let mut studies: Vec<Study> = Vec::new();
-    let mut effects = Vec::new();
+    // Every object is located first: an effect of one may show in another's motion (a box
+    // struck by one heavier than modelled slides further than predicted).
+    let mut objects: Vec<(ShapeId, String, Vec<Sample>, Located)> = Vec::new();
     for &shape in &shapes {
         let name = trace.base.shapes.name[shape as usize].clone();
         let mine: Vec<Sample> = samples.iter().filter(|s| s.object == name).cloned().collect();
         say(format!("{name}: locating mismatches"));
         let located = locate::locate(trace, &trace.physics, shape, &mine, opts.settle)?;
+        objects.push((shape, name, mine, located));
+    }
+    let mut studies: Vec<Study> = Vec::new();
+    for (shape, name, mine, located) in objects.iter().cloned() {
         // Fitting windows end before the cut; held-out ones start after it; both only where the
         // object moves.
         let last = trace.states.len().saturating_sub(horizon + 1);
@@ -108,7 +113,8 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
         }
         fits.sort_by(|a, b| b.heldout_gain().total_cmp(&a.heldout_gain()));
         // Named: of the families that pass on both parts, the simplest that the windows cannot
-        // tell from the best (one standard error), provided it explains located mismatches.
+        // tell from the best (one standard error), provided it explains located mismatches, the
+        // object's own or another's.
         let mut chosen = None;
         let mut explained = Vec::new();
         for f in parsimonious(fits.iter().filter(|f| f.train_gain() >= opts.min_gain && f.heldout_gain() >= opts.min_gain).collect()) {
@@ -116,17 +122,22 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
             let mut physics = trace.physics.clone();
             physics.effects.push(effect);
             explained = locate::explained(trace, &located, &physics, shape, &mine)?;
-            if !explained.is_empty() {
+            let mut elsewhere = false;
+            for (other, _, theirs, their_located) in objects.iter().filter(|o| o.0 != shape && !o.3.windows.is_empty()) {
+                if explained.is_empty() && !elsewhere {
+                    elsewhere = !locate::explained(trace, their_located, &physics, *other, theirs)?.is_empty();
+                }
+            }
+            if !explained.is_empty() || elsewhere {
                 chosen = Some(f.clone());
                 break;
             }
         }
-        if let Some(e) = chosen.as_ref().and_then(|f| f.effect_term.clone()) {
-            effects.push(e);
-        }
         let regression = select::select(&mine, &candidates::ALL, SelectOptions { train_fraction: opts.train_fraction, ..Default::default() });
-        studies.push(Study { shape, name, samples: mine, located, explained, train, heldout, setting, fits, chosen, refined_from: None, regression, base_heldout });
+        studies.push(Study { shape, name, samples: mine, located, explained, explained_by: None, train, heldout, setting, fits, chosen, refined_from: None, regression, base_heldout });
     }
+    one_mass_change(&mut studies);
+    let mut effects: Vec<_> = studies.iter().filter_map(|s| s.chosen.as_ref().and_then(|f| f.effect_term.clone())).collect();
     // Model: the named terms' parameters refined on a replay tracked with them. Tracking with a
     // model that lacks the effect lags what the effect does (the visual forces pull the object
     // after it), and a parameter fitted to that lag inherits it; with the effect in the model the
@@ -165,6 +176,20 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
     let model = ModelFile { source: format!("pegs diagnose {}", recording.display()), effects };
     let model_path = out.join("model.yaml");
     model.save(&model_path)?;
+    // An object with no effect of its own may still have missed because of another's: a box
+    // struck by one heavier than modelled slides further than predicted.
+    let named: Vec<String> = studies.iter().filter_map(|s| s.chosen.as_ref().map(|f| format!("{} of {}", f.effect, s.name))).collect();
+    for study in studies.iter_mut().filter(|s| s.chosen.is_none() && !s.located.windows.is_empty()) {
+        let mut physics = trace.physics.clone();
+        physics.effects.extend(model.effects.iter().filter(|e| e.object() != Some(study.name.as_str())).cloned());
+        if physics.effects.is_empty() {
+            continue;
+        }
+        study.explained = locate::explained(trace, &study.located, &physics, study.shape, &study.samples)?;
+        if !study.explained.is_empty() {
+            study.explained_by = Some(named.join(", "));
+        }
+    }
     // Show: replay again with the augmented model.
     let after = if model.effects.is_empty() {
         None
@@ -205,6 +230,26 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
     Ok(report)
 }
 
+/// Masses show only as ratios between objects that collide: a box struck by one heavier than
+/// modelled fits a lighter mass of its own as well. Of several objects named a mass change,
+/// only the one whose change cuts the held-out error most keeps it.
+fn one_mass_change(studies: &mut [Study]) {
+    let chosen: Vec<Option<&Fit>> = studies.iter().map(|s| s.chosen.as_ref()).collect();
+    let dropped = mass_changes_to_drop(&chosen);
+    for i in dropped {
+        studies[i].chosen = None;
+        studies[i].explained.clear();
+    }
+}
+
+/// Of the named fits (one per object), the indices of the mass changes to drop: all but the one
+/// with the best held-out gain.
+fn mass_changes_to_drop(chosen: &[Option<&Fit>]) -> Vec<usize> {
+    let mass: Vec<(usize, f64)> = chosen.iter().enumerate().filter_map(|(i, f)| f.filter(|f| f.family == Some(Family::MassScale)).map(|f| (i, f.heldout_gain()))).collect();
+    let best = mass.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|b| b.0);
+    mass.iter().map(|m| m.0).filter(|&i| Some(i) != best).collect()
+}
+
 /// `passing` reordered by the one-standard-error rule over all windows (fitting and held-out; a
 /// family that fits the first part far worse is no twin of one that fits both): the best fit
 /// (lowest mean squared error) and the fits within one standard error of it (paired over
@@ -232,8 +277,12 @@ struct Study {
     name: String,
     samples: Vec<Sample>,
     located: Located,
-    /// The located mismatches the named effect explains.
+    /// The located mismatches the named effect explains (or, for an object with none of its
+    /// own, the effects named on other objects).
     explained: Vec<locate::Mismatch>,
+    /// For an object with no effect of its own: the other objects' effects that explain its
+    /// mismatches.
+    explained_by: Option<String>,
     train: Vec<usize>,
     heldout: Vec<usize>,
     setting: Setting,
@@ -323,6 +372,7 @@ fn object_report(study: Study, before: Outcome, after: Outcome, cut: f64, train_
         // Deviations no effect explains are listed apart: they are not missing physics.
         unexplained: study.located.windows.iter().filter(|w| !study.explained.iter().any(|e| e.t_start < w.t_end && w.t_start < e.t_end)).cloned().collect(),
         mismatch: study.explained,
+        explained_by: study.explained_by,
         effect: study.chosen.as_ref().map_or("none".into(), |f| f.effect.clone()),
         parameters,
         // How much the effect explains is judged where it was named.
@@ -361,6 +411,16 @@ mod tests {
             family: Some(family),
             effect_term: None,
         }
+    }
+
+    #[test]
+    fn of_two_objects_named_a_mass_change_only_the_one_that_explains_more_keeps_it() {
+        let heavy = fit(Family::MassScale, &[0.1]);
+        let light = fit(Family::MassScale, &[0.5]);
+        let drag = fit(Family::ViscousDrag, &[0.05]);
+        // Held-out gains 0.9 and 0.5: the lighter-box reading is dropped; other effects stay.
+        assert_eq!(mass_changes_to_drop(&[Some(&light), None, Some(&heavy), Some(&drag)]), vec![0]);
+        assert!(mass_changes_to_drop(&[Some(&heavy), Some(&drag)]).is_empty());
     }
 
     #[test]

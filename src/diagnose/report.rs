@@ -38,6 +38,9 @@ pub struct ObjectReport {
     pub unexplained: Vec<Mismatch>,
     /// Short-horizon error a prediction had to exceed to count as a mismatch, mm.
     pub locate_threshold_mm: f32,
+    /// For an object with no effect of its own: the effects named on other objects that explain
+    /// its `mismatch` windows (e.g. "mass_error of box").
+    pub explained_by: Option<String>,
     /// The named effect, or "none" (no significant missing physics).
     pub effect: String,
     pub parameters: Vec<Parameter>,
@@ -100,7 +103,14 @@ impl Report {
         let mut md = format!("# Diagnosis of {}\n\n", self.recording);
         for o in &self.objects {
             let _ = writeln!(md, "## {}\n", o.object);
-            if o.mismatch.is_empty() {
+            if o.mismatch.is_empty() && o.effect != "none" {
+                let _ = writeln!(
+                    md,
+                    "**Locate.** The named effect shows in the motion of the objects this one strikes (see their sections), not in short open-loop predictions of its own: {} short deviation(s) beyond {:.1} mm are listed under `unexplained` in report.json.\n",
+                    o.unexplained.len(),
+                    o.locate_threshold_mm
+                );
+            } else if o.mismatch.is_empty() {
                 let _ = writeln!(
                     md,
                     "**Locate.** No systematic mismatch: {} short deviation(s) of open-loop predictions (0.2 s) beyond {:.1} mm, which no candidate effect explains.\n",
@@ -110,8 +120,9 @@ impl Report {
             } else {
                 let _ = writeln!(
                     md,
-                    "**Locate.** Short open-loop predictions (0.2 s) miss the tracked object by more than {:.1} mm, and the named effect explains the miss, in the windows below (another {} short deviation(s) it does not explain are listed under `unexplained` in report.json):\n",
+                    "**Locate.** Short open-loop predictions (0.2 s) miss the tracked object by more than {:.1} mm, and {} explains the miss, in the windows below (another {} short deviation(s) it does not explain are listed under `unexplained` in report.json):\n",
                     o.locate_threshold_mm,
+                    o.explained_by.as_ref().map_or("the named effect".to_string(), |e| format!("an effect of another object ({e})")),
                     o.unexplained.len()
                 );
                 let _ = writeln!(md, "| from (s) | to (s) | region x (m) | region y (m) | phase | peak error (mm) |\n|---|---|---|---|---|---|");
@@ -136,7 +147,9 @@ impl Report {
                 }
                 md.push('\n');
             }
-            if o.effect == "none" {
+            if let (true, Some(by)) = (o.effect == "none", &o.explained_by) {
+                let _ = writeln!(md, "**Name.** No missing physics of its own: its mismatches are explained by {by}.\n");
+            } else if o.effect == "none" {
                 let _ = writeln!(md, "**Name.** No significant missing physics: no candidate effect cuts the held-out 1 s prediction error enough.\n");
             } else {
                 let params: Vec<String> = o

@@ -7,7 +7,7 @@
 //! Strikes are planned against the true world: its physics is run up to each strike to find where
 //! the box came to rest, and the rod approaches from there.
 
-use super::{BOX_Z, add_box, add_table};
+use super::{BOX_Z, add_box, add_painted_box, add_table};
 use crate::config::Config;
 use crate::math::Pose;
 use crate::physics::Effect;
@@ -18,7 +18,7 @@ use crate::tracker::Tracker;
 use anyhow::{Context, Result};
 use glam::{DVec3, Quat, Vec2, Vec3};
 
-pub const NAMES: [&str; 6] = ["concealed_control", "concealed_drag", "concealed_tilt", "concealed_tether", "concealed_patch", "concealed_weight"];
+pub const NAMES: [&str; 7] = ["concealed_control", "concealed_drag", "concealed_tilt", "concealed_tether", "concealed_patch", "concealed_weight", "concealed_heavy"];
 
 /// Recording length, s.
 pub const SECONDS: f64 = 8.5;
@@ -31,6 +31,7 @@ pub fn description(name: &str) -> &'static str {
         "concealed_tether" => "concealed: an invisible elastic cord (0.8 N/m) ties the box to a point 10 cm behind it",
         "concealed_patch" => "concealed: an invisible patch of friction 0.15 on the slippery table (0.03)",
         "concealed_weight" => "concealed: a hidden weight moves the box's centre of mass 1.5 cm along its length",
+        "concealed_heavy" => "concealed: the box weighs 3 times what it looks (a lead core); it shows only when the box strikes two others",
         _ => "",
     }
 }
@@ -38,6 +39,26 @@ pub fn description(name: &str) -> &'static str {
 /// Where the box starts (centre, yaw).
 const START: Vec3 = Vec3::new(0.5, -0.12, BOX_Z);
 const START_YAW: f32 = 0.2;
+
+/// The struck box's start: square to the strikes where it must hit other boxes head on.
+fn start(name: &str) -> Pose {
+    match name {
+        "concealed_heavy" => Pose::new(Vec3::new(0.45, -0.14, BOX_Z), Quat::IDENTITY),
+        _ => Pose::new(START, Quat::from_rotation_z(START_YAW)),
+    }
+}
+
+/// Other boxes on the table (name, centre), of the struck box's size and mass but other colours.
+/// Mass shows only as a ratio, when objects collide: the heavy box's first strike sends it into
+/// `box2` (fitted), its last into `box3` (held out), which is moved to wait ahead of it once the
+/// box's rest before that strike is known (`Strike::aim`). Between, a sideways strike parts it
+/// from `box2`.
+fn others(name: &str) -> Vec<(&'static str, Vec3)> {
+    match name {
+        "concealed_heavy" => vec![("box2", Vec3::new(0.45, 0.06, BOX_Z)), ("box3", Vec3::new(0.633, -0.142, BOX_Z))],
+        _ => Vec::new(),
+    }
+}
 
 /// The true hidden effect of scenario `name` and the number a diagnosis should recover.
 #[derive(Clone, Debug)]
@@ -54,6 +75,8 @@ pub struct HiddenTruth {
 pub const TILT_ANGLE: f32 = 1.0 * std::f32::consts::PI / 180.0;
 /// Mass of the 12 x 6 x 5 cm scenario box (360 particles of 1 g).
 pub const BOX_MASS: f32 = 0.36;
+/// How many times heavier than it looks the box of `concealed_heavy` is.
+pub const HEAVY: f32 = 3.0;
 
 pub fn truth(name: &str) -> HiddenTruth {
     let none = HiddenTruth { effects: Vec::new(), effect: None, parameter: None, region: None };
@@ -99,6 +122,12 @@ pub fn truth(name: &str) -> HiddenTruth {
                 region: Some((center, half_size)),
             }
         }
+        "concealed_heavy" => HiddenTruth {
+            effects: vec![Effect::MassScale { object: box_(), factor: HEAVY }],
+            effect: Some("mass_error"),
+            parameter: Some(("factor", HEAVY)),
+            region: None,
+        },
         "concealed_weight" => HiddenTruth {
             effects: vec![Effect::CenterOfMassOffset { object: box_(), offset: Vec3::new(0.015, 0.0, 0.0) }],
             effect: Some("center_of_mass_offset"),
@@ -128,9 +157,20 @@ struct Strike {
     direction: DVec3,
     speed: f64,
     distance: f64,
+    /// Another box (name, centre-to-centre distance) waiting ahead of the struck box, on its line
+    /// of motion: placed once the box's rest before this strike is known.
+    aim: Option<(&'static str, f64)>,
 }
 
 fn strikes(name: &str) -> Vec<Strike> {
+    if name == "concealed_heavy" {
+        // Into box2 (fitted), sideways off it, into box3 (held out).
+        return vec![
+            Strike { t: 0.9, direction: DVec3::Y, speed: 0.35, distance: 0.1, aim: None },
+            Strike { t: 3.7, direction: DVec3::X, speed: 0.3, distance: 0.12, aim: None },
+            Strike { t: 6.5, direction: DVec3::NEG_Y, speed: 0.3, distance: 0.1, aim: Some(("box3", 0.17)) },
+        ];
+    }
     let (s1, s2, s3) = match name {
         "concealed_drag" => (0.45, 0.3, 0.38),
         "concealed_patch" => (0.5, 0.3, 0.45),
@@ -140,9 +180,9 @@ fn strikes(name: &str) -> Vec<Strike> {
     // The third strike falls in the held-out part of a diagnosis (the last 30 %), so what was
     // fitted on the first two is judged on a motion it has not seen.
     vec![
-        Strike { t: 0.9, direction: DVec3::Y, speed: s1, distance: 0.1 },
-        Strike { t: 3.7, direction: DVec3::NEG_Y, speed: s2, distance: 0.09 },
-        Strike { t: 6.5, direction: DVec3::Y, speed: s3, distance: 0.09 },
+        Strike { t: 0.9, direction: DVec3::Y, speed: s1, distance: 0.1, aim: None },
+        Strike { t: 3.7, direction: DVec3::NEG_Y, speed: s2, distance: 0.09, aim: None },
+        Strike { t: 6.5, direction: DVec3::Y, speed: s3, distance: 0.09, aim: None },
     ]
 }
 
@@ -168,10 +208,14 @@ fn strike_waypoints(s: &Strike, box_centre: DVec3, reach: f64) -> Vec<(f64, DVec
     ]
 }
 
-fn assemble(name: &str, offset: Pose, waypoints: &[(f64, DVec3)]) -> Result<Scene> {
+fn assemble(name: &str, offset: Pose, waypoints: &[(f64, DVec3)], others: &[(&str, Vec3)]) -> Result<Scene> {
     let mut b = WorldBuilder::new();
     add_table(&mut b);
-    add_box(&mut b, Pose::new(START, Quat::from_rotation_z(START_YAW)), offset);
+    add_box(&mut b, start(name), offset);
+    let colours = [(Vec3::new(0.85, 0.15, 0.15), Vec3::splat(0.9)), (Vec3::new(0.2, 0.7, 0.25), Vec3::new(0.9, 0.3, 0.8))];
+    for (&(other, centre), (body, end)) in others.iter().zip(colours) {
+        add_painted_box(&mut b, other, Pose::from_translation(centre), offset, body, end);
+    }
     let model = builtin::panda_pusher()?;
     let mut points = waypoints.to_vec();
     points.push((SECONDS + 0.1, points.last().map_or(PARK, |w| w.1)));
@@ -184,10 +228,11 @@ fn assemble(name: &str, offset: Pose, waypoints: &[(f64, DVec3)]) -> Result<Scen
 /// Scenario `name`'s world with the box placed `offset` away from its true start.
 pub fn build(name: &str, offset: Pose) -> Result<Scene> {
     let mut waypoints = vec![(0.0, PARK)];
+    let mut others = others(name);
     let truth_config = super::truth_config(name);
     for strike in strikes(name) {
         // Run the true world up to the strike to see where the box rests.
-        let mut world = Tracker::new(assemble(name, Pose::IDENTITY, &waypoints)?, &truth_config, false)?;
+        let mut world = Tracker::new(assemble(name, Pose::IDENTITY, &waypoints, &others)?, &truth_config, false)?;
         let box_id = world.scene.world.shape_id("box").context("no box")?;
         while world.scene.world.time < strike.t - 0.75 - 1e-6 {
             world.tick(&[])?;
@@ -196,8 +241,14 @@ pub fn build(name: &str, offset: Pose) -> Result<Scene> {
         let centre = w.shape_centroid(box_id).as_dvec3();
         let reach = w.shapes.range(box_id).map(|i| (centre - w.particles.position[i].as_dvec3()).dot(strike.direction) + w.particles.radius[i] as f64).fold(0.0, f64::max);
         waypoints.extend(strike_waypoints(&strike, centre, reach));
+        if let Some((target, gap)) = strike.aim {
+            let ahead = centre + strike.direction * gap;
+            for other in others.iter_mut().filter(|o| o.0 == target) {
+                other.1 = Vec3::new(ahead.x as f32, ahead.y as f32, BOX_Z);
+            }
+        }
     }
-    assemble(name, offset, &waypoints)
+    assemble(name, offset, &waypoints, &others)
 }
 
 #[cfg(test)]
@@ -214,5 +265,43 @@ mod tests {
         }
         // The tilt's static friction holds the box at rest (tan 1.0 deg < 0.04).
         assert!(TILT_ANGLE.tan() < model_config().physics.ground.static_friction);
+    }
+
+    /// Centres of box, box2, box3 at each of `times` in `scene` run with `config`.
+    fn centres_at(scene: Scene, config: &Config, times: &[f64]) -> Vec<[Vec3; 3]> {
+        let mut world = Tracker::new(scene, config, false).unwrap();
+        let ids: Vec<_> = ["box", "box2", "box3"].iter().map(|n| world.scene.world.shape_id(n).unwrap()).collect();
+        let mut out = Vec::new();
+        for &t in times {
+            while world.scene.world.time < t - 1e-6 {
+                world.tick(&[]).unwrap();
+            }
+            let w = &world.scene.world;
+            out.push([0, 1, 2].map(|i| w.shape_centroid(ids[i])));
+        }
+        out
+    }
+
+    /// The heavy box strikes box2 in the fitted part of the recording and box3 in the held-out
+    /// part, and only there does its mass show: with the true mass box2 slides further than the
+    /// model (the struck box at its apparent mass) says.
+    #[test]
+    fn the_heavy_box_strikes_one_box_in_each_part_and_its_mass_shows_in_how_far_they_slide() {
+        let name = "concealed_heavy";
+        let times = [0.0, 3.6, 6.4, SECONDS];
+        let truth = centres_at(build(name, Pose::IDENTITY).unwrap(), &super::super::truth_config(name), &times);
+        let model = centres_at(build(name, Pose::IDENTITY).unwrap(), &model_config(), &times[..2]);
+        let moved = |a: Vec3, b: Vec3| a.distance(b);
+        eprintln!("truth {truth:?}\nmodel {model:?}");
+        // box2: struck by the first glide, then left alone; box3 waits until the last.
+        assert!(moved(truth[0][1], truth[1][1]) > 0.05, "box2 {:?}", truth.iter().map(|c| c[1]).collect::<Vec<_>>());
+        assert!(moved(truth[1][1], truth[3][1]) < 0.01, "box2 {:?}", truth.iter().map(|c| c[1]).collect::<Vec<_>>());
+        assert!(moved(truth[0][2], truth[2][2]) < 1e-3 && moved(truth[2][2], truth[3][2]) > 0.05, "box3 {:?}", truth.iter().map(|c| c[2]).collect::<Vec<_>>());
+        let (true_slide, model_slide) = (moved(truth[0][1], truth[1][1]), moved(model[0][1], model[1][1]));
+        assert!(model_slide < 0.7 * true_slide, "box2 slides {model_slide} (model) vs {true_slide} (truth)");
+        // Every box ends on the textured table, in the cameras' view.
+        for c in truth[3] {
+            assert!(c.x > 0.25 && c.x < 0.75 && c.y.abs() < 0.27, "{c:?}");
+        }
     }
 }

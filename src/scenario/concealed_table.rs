@@ -24,7 +24,8 @@ pub struct Verdict {
     pub truth_value: Option<f32>,
     /// |estimate - truth| / truth.
     pub relative_error: Option<f32>,
-    pub windows: Vec<(f64, f64)>,
+    /// Mismatch windows (start, end, object).
+    pub windows: Vec<(f64, f64, String)>,
     pub region_ok: Option<bool>,
     pub open_loop_before_mm: f32,
     pub open_loop_after_mm: f32,
@@ -51,7 +52,8 @@ pub fn judge(name: &str, report: &Report) -> Verdict {
         (Some(e), Some(t)) => Some((e.abs() - t).abs() / t),
         _ => None,
     };
-    let windows: Vec<(f64, f64)> = object.map_or(Vec::new(), |o| o.mismatch.iter().map(|m| (m.t_start, m.t_end)).collect());
+    // Where the effect shows, in any object's motion (a heavy box shows in the boxes it strikes).
+    let windows: Vec<(f64, f64, String)> = report.mismatch.iter().map(|m| (m.t_start, m.t_end, m.object.clone())).collect();
     let region_ok = truth.region.map(|(c, h)| {
         // The placed patch: at least half of it is truly patch (it is known only where the box
         // went, so it may be smaller than the truth), and every located mismatch reaches into it.
@@ -115,7 +117,7 @@ pub fn run(out: &Path, names: &[String], width: u32, height: u32, progress: bool
             (Some(e), Some(t)) => format!("{e:.4} ({t:.4})"),
             _ => "-".into(),
         };
-        let windows: Vec<String> = v.windows.iter().map(|w| format!("{:.1}-{:.1}", w.0, w.1)).collect();
+        let windows: Vec<String> = v.windows.iter().map(|w| format!("{:.1}-{:.1}{}", w.0, w.1, if w.2 == "box" { String::new() } else { format!(" ({})", w.2) })).collect();
         rows.push(format!(
             "| {} | {} | {} | {} | {} | {} | {:.1} -> {:.1} | {} |",
             v.scenario,

@@ -53,6 +53,7 @@ pub fn object_names(name: &str) -> &'static [&'static str] {
     match name {
         n if n.contains("tblock") => &["tblock"],
         "two_boxes" => &["box", "box2"],
+        "concealed_heavy" => &["box", "box2", "box3"],
         "dragged_rope" => &["rope"],
         _ => &["box"],
     }
@@ -122,9 +123,15 @@ fn displaced(rest: Pose, offset: Pose) -> Pose {
 
 /// A 12 x 6 x 5 cm box, blue with a yellow end, so no rotation of it looks the same.
 fn add_box(b: &mut WorldBuilder, rest: Pose, offset: Pose) -> ShapeId {
-    let bx = b.add_rigid("box", &box_lattice(Vec3::new(0.06, 0.03, 0.025), 2.0 * R), R, MASS, displaced(rest, offset), Vec3::new(0.15, 0.35, 0.9));
+    add_painted_box(b, "box", rest, offset, Vec3::new(0.15, 0.35, 0.9), Vec3::new(0.95, 0.8, 0.1))
+}
+
+/// A 12 x 6 x 5 cm box of 1 g particles named `name`, coloured `body` with an `end` of another
+/// colour along its +x end.
+fn add_painted_box(b: &mut WorldBuilder, name: &str, rest: Pose, offset: Pose, body: Vec3, end: Vec3) -> ShapeId {
+    let bx = b.add_rigid(name, &box_lattice(Vec3::new(0.06, 0.03, 0.025), 2.0 * R), R, MASS, displaced(rest, offset), body);
     b.set_gaussian_look(bx, R, 0.97);
-    b.paint(bx, |p| if p.x > 0.02 { Some(Vec3::new(0.95, 0.8, 0.1)) } else { None });
+    b.paint(bx, |p| if p.x > 0.02 { Some(end) } else { None });
     bx
 }
 
