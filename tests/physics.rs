@@ -456,6 +456,39 @@ fn viscous_drag_decays_velocity_exponentially() {
     assert!((v - want).abs() < 0.03, "v {v}, want {want}");
 }
 
+/// Highest the box's centroid climbs after it first strikes the ground, above its resting
+/// height, when dropped from `drop` above it.
+fn rebound_height(drop: f32, restitution: Option<f32>) -> f32 {
+    let half = Vec3::new(0.03, 0.03, 0.02);
+    let rest = resting_height(half.z);
+    let mut b = WorldBuilder::new();
+    let s = b.add_rigid("box", &box_lattice(half, SPACING), R, M, Pose::from_translation(Vec3::new(0.0, 0.0, rest + drop)), Vec3::ONE);
+    let mut w = b.build();
+    let mut config = undamped();
+    config.effects = restitution.map(|e| Effect::Restitution { object: Some("box".into()), coefficient: e }).into_iter().collect();
+    let mut solver = Solver::new(config, &w).unwrap();
+    let mut heights = Vec::new();
+    run(&mut w, &mut solver, 45, |w| heights.push(w.shape_centroid(s).z - rest));
+    // The first bounce: from the first tick the box rises to the first it falls again.
+    let Some(up) = heights.windows(2).position(|h| h[1] > h[0] + 1e-5) else { return 0.0 };
+    let down = heights[up..].windows(2).position(|h| h[1] < h[0] - 1e-5).map_or(heights.len(), |d| up + d + 1);
+    heights[up..down].iter().copied().fold(0.0, f32::max)
+}
+
+#[test]
+fn restitution_bounces_a_dropped_box_to_e_squared_of_its_height() {
+    let drop = 0.2;
+    // The base model's contacts absorb the impact.
+    let dead = rebound_height(drop, None);
+    assert!(dead < 2e-3, "no restitution, rebound {dead} m");
+    // v_out = e v_in, so the rebound reaches e^2 of the drop.
+    for e in [0.5f32, 0.8] {
+        let h = rebound_height(drop, Some(e));
+        let want = e * e * drop;
+        assert!((h - want).abs() < 0.15 * want, "e {e}: rebound {h} m, want {want} m");
+    }
+}
+
 #[test]
 fn friction_patch_stops_a_box_sooner_than_the_plain_table() {
     let plain = slide_distance(1.0, undamped());

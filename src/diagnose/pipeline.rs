@@ -318,6 +318,8 @@ fn regression_counterpart(family: Family) -> Option<candidates::Candidate> {
         Family::Spring => Some(C::Spring),
         Family::MassScale => Some(C::MassError),
         Family::AngularDamping => Some(C::AngularDamping),
+        // Impacts are too short for the per-tick force regression.
+        Family::Restitution => None,
         Family::CenterOfMass(_) => None,
     }
 }

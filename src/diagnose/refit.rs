@@ -22,18 +22,21 @@ pub enum Family {
     Spring,
     MassScale,
     AngularDamping,
+    /// Ground contacts give back part of the impact speed (a bounce).
+    Restitution,
     FrictionPatch,
     /// Centre of mass moved along the body's x or y axis.
     CenterOfMass(usize),
 }
 
-pub const ALL: [Family; 9] = [
+pub const ALL: [Family; 10] = [
     Family::ViscousDrag,
     Family::GroundFriction,
     Family::ConstantForce,
     Family::Spring,
     Family::MassScale,
     Family::AngularDamping,
+    Family::Restitution,
     Family::FrictionPatch,
     Family::CenterOfMass(0),
     Family::CenterOfMass(1),
@@ -49,6 +52,7 @@ impl Family {
             Family::Spring => "spring",
             Family::MassScale => "mass_error",
             Family::AngularDamping => "angular_damping",
+            Family::Restitution => "restitution",
             Family::FrictionPatch => "friction_patch",
             Family::CenterOfMass(_) => "center_of_mass_offset",
         }
@@ -59,7 +63,7 @@ impl Family {
     /// cannot tell apart, the simpler is named.
     pub fn complexity(self) -> usize {
         match self {
-            Family::ViscousDrag | Family::GroundFriction | Family::MassScale | Family::AngularDamping => 1,
+            Family::ViscousDrag | Family::GroundFriction | Family::MassScale | Family::AngularDamping | Family::Restitution => 1,
             Family::ConstantForce | Family::CenterOfMass(_) => 2,
             Family::Spring => 3,
             Family::FrictionPatch => 5,
@@ -75,6 +79,7 @@ impl Family {
             Family::Spring => ("stiffness", "N/m"),
             Family::MassScale => ("factor", ""),
             Family::AngularDamping => ("coefficient", "1/s"),
+            Family::Restitution => ("coefficient", ""),
             Family::CenterOfMass(_) => ("offset", "m"),
         }
     }
@@ -112,6 +117,7 @@ impl Setting {
             Family::Spring => self.anchor.map(|_| (0.1 * m, 100.0 * m, true)),
             Family::MassScale => Some((0.25, 4.0, true)),
             Family::AngularDamping => Some((0.03, 30.0, true)),
+            Family::Restitution => Some((0.0, 0.95, false)),
             Family::FrictionPatch => self.region.map(|_| (0.0, 1.0, false)),
             Family::CenterOfMass(axis) => (self.com_limit[axis] > 1e-3).then(|| (-self.com_limit[axis], self.com_limit[axis], false)),
         }
@@ -133,6 +139,7 @@ impl Setting {
             Family::Spring => Effect::Spring { object, point: Vec3::ZERO, anchor: self.anchor?, stiffness: value, rest_length: 0.0, damping: 0.0, tether: false },
             Family::MassScale => Effect::MassScale { object, factor: value },
             Family::AngularDamping => Effect::AngularDamping { object: Some(object), coefficient: value },
+            Family::Restitution => Effect::Restitution { object: Some(object), coefficient: value },
             Family::FrictionPatch => {
                 let (lo, hi) = self.region?;
                 Effect::FrictionPatch { center: (lo + hi) * 0.5, half_size: (hi - lo) * 0.5, static_friction: value + friction_gap, kinetic_friction: value }
@@ -715,6 +722,36 @@ mod tests {
         assert!((lo.x - 0.12).abs() < 0.01, "edge at {} (truth 0.12)", lo.x);
         assert!(hi.x > 0.13 && hi.x <= region.unwrap().1.x + 1e-4, "{lo} {hi}");
         assert!((fit.value - 0.2).abs() < 0.03 && fit.train_gain() > 0.9, "{fit:?}");
+    }
+
+    /// A box thrown onto a slippery table, bouncing: the share of its impact speed the ground gives
+    /// back shows in how far it slides (it brakes only while it touches the table).
+    #[test]
+    fn a_bounce_is_fitted_with_its_restitution() {
+        use crate::math::Pose;
+        use crate::scene::{WorldBuilder, box_lattice};
+        let mut b = WorldBuilder::new();
+        let points = box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01);
+        let shape = b.add_rigid("box", &points, 0.005, 0.2 / points.len() as f32, Pose::from_translation(Vec3::new(0.0, 0.0, 0.2)), Vec3::ONE);
+        let mut world = b.build();
+        let mut base = PhysicsConfig::default();
+        base.ground.static_friction = 0.3;
+        base.ground.kinetic_friction = 0.25;
+        let mut truth = base.clone();
+        truth.effects = vec![Effect::Restitution { object: Some("box".into()), coefficient: 0.6 }];
+        world.shapes.range(shape).for_each(|i| world.particles.velocity[i] = Vec3::new(1.0, 0.0, 0.0));
+        let mut trace = Trace { base: world.clone(), physics: base, robot: None, states: vec![super::super::trace::State::of(&world)] };
+        let mut solver = crate::physics::Solver::new(truth, &world).unwrap();
+        for _ in 0..60 {
+            solver.step(&mut world).unwrap();
+            trace.states.push(super::super::trace::State::of(&world));
+        }
+        let train: Vec<usize> = (2..=10).step_by(2).collect();
+        let setting = Setting { object: "box".into(), shape, mass: 0.2, base: trace.physics.clone(), force_direction: None, anchor: None, region: None, com_limit: [0.0; 2] };
+        let base_train = trace.predict(&setting.base, shape, &train, 30).unwrap();
+        let fit = fit(&trace, &setting, Family::Restitution, &train, &train, 30, &base_train, &base_train).unwrap().unwrap();
+        eprintln!("restitution fitted {} (truth 0.6), fit gain {:.2}", fit.value, fit.train_gain());
+        assert!((fit.value - 0.6).abs() < 0.1 && fit.train_gain() > 0.5, "{fit:?}");
     }
 
     #[test]

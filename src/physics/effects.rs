@@ -32,6 +32,13 @@ pub enum Effect {
         object: Option<String>,
         force: Vec3,
     },
+    /// Ground contacts give back `coefficient` of the normal speed an object strikes the ground
+    /// with (0, the base model: contacts absorb it; 1: a perfect bounce).
+    Restitution {
+        #[serde(default)]
+        object: Option<String>,
+        coefficient: f32,
+    },
     /// The table is tilted by `angle` (rad) with its downhill direction at `azimuth` (rad, from
     /// the ground plane's first tangent, +x for a horizontal table): gravity gains an in-plane part.
     TableTilt { angle: f32, azimuth: f32 },
@@ -67,6 +74,7 @@ impl Effect {
         match self {
             Effect::ViscousDrag { .. } => "viscous_drag",
             Effect::AngularDamping { .. } => "angular_damping",
+            Effect::Restitution { .. } => "restitution",
             Effect::ConstantForce { .. } => "constant_force",
             Effect::TableTilt { .. } => "table_tilt",
             Effect::MassScale { .. } => "mass_scale",
@@ -79,7 +87,7 @@ impl Effect {
     /// The object this effect acts on, if it names one.
     pub fn object(&self) -> Option<&str> {
         match self {
-            Effect::ViscousDrag { object, .. } | Effect::AngularDamping { object, .. } | Effect::ConstantForce { object, .. } => {
+            Effect::ViscousDrag { object, .. } | Effect::AngularDamping { object, .. } | Effect::ConstantForce { object, .. } | Effect::Restitution { object, .. } => {
                 object.as_deref()
             }
             Effect::MassScale { object, .. } | Effect::CenterOfMassOffset { object, .. } | Effect::Spring { object, .. } => Some(object),
@@ -90,7 +98,9 @@ impl Effect {
     /// The scalar parameters, by name, in a fixed order (vectors expand to `_x`, `_y`, `_z`).
     pub fn parameters(&self) -> Vec<(&'static str, f32)> {
         match *self {
-            Effect::ViscousDrag { coefficient, .. } | Effect::AngularDamping { coefficient, .. } => vec![("coefficient", coefficient)],
+            Effect::ViscousDrag { coefficient, .. } | Effect::AngularDamping { coefficient, .. } | Effect::Restitution { coefficient, .. } => {
+                vec![("coefficient", coefficient)]
+            }
             Effect::ConstantForce { force, .. } => vec![("force_x", force.x), ("force_y", force.y), ("force_z", force.z)],
             Effect::TableTilt { angle, azimuth } => vec![("angle", angle), ("azimuth", azimuth)],
             Effect::MassScale { factor, .. } => vec![("factor", factor)],
@@ -121,7 +131,9 @@ impl Effect {
     pub fn set_parameter(&mut self, name: &str, value: f32) -> Result<()> {
         let effect_name = self.name();
         let slot: Option<&mut f32> = match self {
-            Effect::ViscousDrag { coefficient, .. } | Effect::AngularDamping { coefficient, .. } => (name == "coefficient").then_some(coefficient),
+            Effect::ViscousDrag { coefficient, .. } | Effect::AngularDamping { coefficient, .. } | Effect::Restitution { coefficient, .. } => {
+                (name == "coefficient").then_some(coefficient)
+            }
             Effect::ConstantForce { force, .. } => vec3_slot(force, name, "force"),
             Effect::TableTilt { angle, azimuth } => match name {
                 "angle" => Some(angle),
@@ -162,6 +174,7 @@ impl Effect {
                 bail!("effect {}: coefficient must be >= 0", self.name())
             }
             Effect::MassScale { factor, .. } if factor <= 0.0 => bail!("effect mass_scale: factor must be > 0"),
+            Effect::Restitution { coefficient, .. } if !(0.0..=1.0).contains(&coefficient) => bail!("effect restitution: coefficient must be within 0 ..= 1"),
             Effect::FrictionPatch { half_size, static_friction, kinetic_friction, .. }
                 if half_size.min_element() < 0.0 || static_friction < 0.0 || kinetic_friction < 0.0 =>
             {
@@ -301,9 +314,20 @@ impl EffectModel {
                     let force = -(stiffness * stretch + damping * p.velocity[i].dot(dir)) * dir;
                     accel[i] += force * inv_mass[i];
                 }
-                Effect::MassScale { .. } | Effect::CenterOfMassOffset { .. } | Effect::FrictionPatch { .. } => {}
+                Effect::MassScale { .. } | Effect::CenterOfMassOffset { .. } | Effect::FrictionPatch { .. } | Effect::Restitution { .. } => {}
             }
         }
+    }
+
+    /// Each of `shapes` shapes' ground restitution (0 where no effect gives one; the last wins).
+    pub fn restitution(&self, shapes: usize) -> Vec<f32> {
+        let mut e = vec![0.0; shapes];
+        for t in &self.terms {
+            if let Effect::Restitution { coefficient, .. } = t.effect {
+                t.shapes.iter().for_each(|&s| e[s as usize] = coefficient);
+            }
+        }
+        e
     }
 
     pub fn has_friction_patches(&self) -> bool {

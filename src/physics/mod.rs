@@ -61,6 +61,9 @@ pub struct Solver {
     inv_mass: Vec<f32>,
     shape_mass: Vec<f32>,
     shape_velocity: Vec<Vec3>,
+    /// Per shape: ground restitution, and the normal speed before this substep's contacts.
+    restitution: Vec<f32>,
+    normal_speed: Vec<f32>,
     prev: Vec<Vec3>,
     accel: Vec<Vec3>,
     delta: Vec<Vec3>,
@@ -86,6 +89,8 @@ impl Solver {
             shape_mass: Vec::new(),
             pinned: Vec::new(),
             shape_velocity: Vec::new(),
+            restitution: Vec::new(),
+            normal_speed: Vec::new(),
             prev: Vec::new(),
             accel: Vec::new(),
             delta: Vec::new(),
@@ -129,6 +134,8 @@ impl Solver {
             .map(|s| world.shapes.range(s as ShapeId).filter(|&i| self.inv_mass[i] > 0.0).map(|i| 1.0 / self.inv_mass[i]).sum())
             .collect();
         self.shape_velocity = vec![Vec3::ZERO; ns];
+        self.restitution = self.effects.restitution(ns);
+        self.normal_speed = vec![0.0; ns];
         self.prev = vec![Vec3::ZERO; n];
         self.accel = vec![Vec3::ZERO; n];
         self.delta = vec![Vec3::ZERO; n];
@@ -166,6 +173,7 @@ impl Solver {
             let fraction = (sub + 1) as f32 / substeps as f32;
             self.place_kinematic(world, driver, fraction);
             self.integrate(world, h);
+            self.record_normal_speeds(world);
             if self.config.collisions.enabled {
                 self.find_contacts(world);
             }
@@ -173,6 +181,7 @@ impl Solver {
                 self.solve_constraints(world, iteration);
             }
             self.update_velocities(world, h);
+            self.bounce(world, h);
         }
         self.finish_tick(world);
         world.time += self.config.dt as f64;
@@ -358,6 +367,39 @@ impl Solver {
         p.velocity.par_iter_mut().zip(p.position.par_iter()).with_min_len(PAR_MIN).enumerate().for_each(|(i, (v, x))| {
             *v = (*x - prev[i]) / h;
         });
+    }
+
+    /// Before contacts are solved: each bouncing shape's speed along the ground normal.
+    fn record_normal_speeds(&mut self, world: &World) {
+        let n = self.config.ground.normal;
+        for s in (0..world.shapes.len()).filter(|&s| self.restitution[s] > 0.0) {
+            self.normal_speed[s] = n.dot(crate::world::mass_weighted_mean(world.shapes.range(s as ShapeId), &world.particles.velocity, &self.inv_mass));
+        }
+    }
+
+    /// Ground restitution at shape level: a shape that struck the ground in this substep leaves
+    /// it at `e` times the normal speed it came in with. Slower impacts (about what gravity adds
+    /// in two substeps) are resting contact and do not bounce.
+    fn bounce(&mut self, world: &mut World, h: f32) {
+        if !self.config.ground.enabled {
+            return;
+        }
+        let (n, height) = (self.config.ground.normal, self.config.ground.height);
+        let resting = 2.0 * self.config.gravity.length() * h;
+        for s in (0..world.shapes.len()).filter(|&s| self.restitution[s] > 0.0) {
+            let range = world.shapes.range(s as ShapeId);
+            let p = &world.particles;
+            let touching = range.clone().any(|i| n.dot(p.position[i]) - height <= p.radius[i] * 1.01);
+            let incoming = self.normal_speed[s];
+            let outgoing = n.dot(crate::world::mass_weighted_mean(range.clone(), &p.velocity, &self.inv_mass));
+            if !touching || incoming > -resting {
+                continue;
+            }
+            let kick = -self.restitution[s] * incoming - outgoing;
+            if kick > 0.0 {
+                range.for_each(|i| world.particles.velocity[i] += kick * n);
+            }
+        }
     }
 
     fn finish_tick(&mut self, world: &mut World) {
