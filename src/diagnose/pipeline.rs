@@ -122,13 +122,15 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
             let mut physics = trace.physics.clone();
             physics.effects.push(effect);
             explained = locate::explained(trace, &located, &physics, shape, &mine)?;
-            let mut elsewhere = false;
-            for (other, _, theirs, their_located) in objects.iter().filter(|o| o.0 != shape && !o.3.windows.is_empty()) {
-                if explained.is_empty() && !elsewhere {
-                    elsewhere = !locate::explained(trace, their_located, &physics, *other, theirs)?.is_empty();
+            let explains_another = || -> Result<bool> {
+                for (other, _, theirs, their_located) in objects.iter().filter(|o| o.0 != shape && !o.3.windows.is_empty()) {
+                    if !locate::explained(trace, their_located, &physics, *other, theirs)?.is_empty() {
+                        return Ok(true);
+                    }
                 }
-            }
-            if !explained.is_empty() || elsewhere {
+                Ok(false)
+            };
+            if !explained.is_empty() || explains_another()? {
                 chosen = Some(f.clone());
                 break;
             }
