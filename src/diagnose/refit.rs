@@ -655,30 +655,37 @@ fn spring_anchor(rows: &[(Vec2, Vec2)]) -> Option<Vec2> {
 mod tests {
     use super::*;
 
-    /// A 0.2 kg box on a slippery table (the base physics), kicked to `kicks[0]` at tick 0 and to
-    /// `kicks[1]` at tick 75, traced for 150 ticks by the base physics plus `hidden`.
-    fn kicked_box(hidden: Effect, kicks: [Vec3; 2]) -> (Trace, ShapeId) {
+    /// A 0.2 kg box (6 x 4 x 2 cm) released at height `z` on a table with kinetic `friction` (the
+    /// base physics; static 0.01 higher), set to `kick(k)` before tick k where that is Some, and
+    /// traced for `ticks` ticks by the base physics plus `hidden`.
+    fn traced_box(z: f32, friction: f32, hidden: Effect, ticks: usize, kick: impl Fn(usize) -> Option<Vec3>) -> (Trace, ShapeId) {
         use crate::math::Pose;
         use crate::scene::{WorldBuilder, box_lattice};
         let mut b = WorldBuilder::new();
         let points = box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01);
-        let shape = b.add_rigid("box", &points, 0.005, 0.2 / points.len() as f32, Pose::from_translation(Vec3::new(0.0, 0.0, 0.0151)), Vec3::ONE);
+        let shape = b.add_rigid("box", &points, 0.005, 0.2 / points.len() as f32, Pose::from_translation(Vec3::new(0.0, 0.0, z)), Vec3::ONE);
         let mut world = b.build();
         let mut base = PhysicsConfig::default();
-        base.ground.static_friction = 0.04;
-        base.ground.kinetic_friction = 0.03;
+        base.ground.static_friction = friction + 0.01;
+        base.ground.kinetic_friction = friction;
         let mut truth = base.clone();
         truth.effects = vec![hidden];
         let mut trace = Trace { base: world.clone(), physics: base, robot: None, states: vec![super::super::trace::State::of(&world)] };
         let mut solver = crate::physics::Solver::new(truth, &world).unwrap();
-        for k in 0..150 {
-            if k == 0 || k == 75 {
-                world.shapes.range(shape).for_each(|i| world.particles.velocity[i] = kicks[k / 75]);
+        for k in 0..ticks {
+            if let Some(v) = kick(k) {
+                world.shapes.range(shape).for_each(|i| world.particles.velocity[i] = v);
             }
             solver.step(&mut world).unwrap();
             trace.states.push(super::super::trace::State::of(&world));
         }
         (trace, shape)
+    }
+
+    /// The box resting on a slippery table (kinetic friction 0.03), kicked to `kicks[0]` at tick 0
+    /// and to `kicks[1]` at tick 75, traced for 150 ticks.
+    fn kicked_box(hidden: Effect, kicks: [Vec3; 2]) -> (Trace, ShapeId) {
+        traced_box(0.0151, 0.03, hidden, 150, |k| (k % 75 == 0).then(|| kicks[k / 75]))
     }
 
     /// Windows whose start velocity (differenced over two ticks each way) does not span a kick
@@ -728,24 +735,8 @@ mod tests {
     /// back shows in how far it slides (it brakes only while it touches the table).
     #[test]
     fn a_bounce_is_fitted_with_its_restitution() {
-        use crate::math::Pose;
-        use crate::scene::{WorldBuilder, box_lattice};
-        let mut b = WorldBuilder::new();
-        let points = box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01);
-        let shape = b.add_rigid("box", &points, 0.005, 0.2 / points.len() as f32, Pose::from_translation(Vec3::new(0.0, 0.0, 0.2)), Vec3::ONE);
-        let mut world = b.build();
-        let mut base = PhysicsConfig::default();
-        base.ground.static_friction = 0.3;
-        base.ground.kinetic_friction = 0.25;
-        let mut truth = base.clone();
-        truth.effects = vec![Effect::Restitution { object: Some("box".into()), coefficient: 0.6 }];
-        world.shapes.range(shape).for_each(|i| world.particles.velocity[i] = Vec3::new(1.0, 0.0, 0.0));
-        let mut trace = Trace { base: world.clone(), physics: base, robot: None, states: vec![super::super::trace::State::of(&world)] };
-        let mut solver = crate::physics::Solver::new(truth, &world).unwrap();
-        for _ in 0..60 {
-            solver.step(&mut world).unwrap();
-            trace.states.push(super::super::trace::State::of(&world));
-        }
+        let bounce = Effect::Restitution { object: Some("box".into()), coefficient: 0.6 };
+        let (trace, shape) = traced_box(0.2, 0.25, bounce, 60, |k| (k == 0).then_some(Vec3::X));
         let train: Vec<usize> = (2..=10).step_by(2).collect();
         let setting = Setting { object: "box".into(), shape, mass: 0.2, base: trace.physics.clone(), force_direction: None, anchor: None, region: None, com_limit: [0.0; 2] };
         let base_train = trace.predict(&setting.base, shape, &train, 30).unwrap();
