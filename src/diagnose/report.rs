@@ -147,7 +147,7 @@ impl Report {
                 }
                 md.push('\n');
             }
-            if let (true, Some(by)) = (o.effect == "none", &o.explained_by) {
+            if o.effect == "none" && let Some(by) = &o.explained_by {
                 let _ = writeln!(md, "**Name.** No missing physics of its own: its mismatches are explained by {by}.\n");
             } else if o.effect == "none" {
                 let _ = writeln!(md, "**Name.** No significant missing physics: no candidate effect cuts the held-out 1 s prediction error enough.\n");

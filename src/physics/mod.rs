@@ -391,10 +391,10 @@ impl Solver {
             let p = &world.particles;
             let touching = range.clone().any(|i| n.dot(p.position[i]) - height <= p.radius[i] * 1.01);
             let incoming = self.normal_speed[s];
-            let outgoing = n.dot(crate::world::mass_weighted_mean(range.clone(), &p.velocity, &self.inv_mass));
             if !touching || incoming > -resting {
                 continue;
             }
+            let outgoing = n.dot(crate::world::mass_weighted_mean(range.clone(), &p.velocity, &self.inv_mass));
             let kick = -self.restitution[s] * incoming - outgoing;
             if kick > 0.0 {
                 range.for_each(|i| world.particles.velocity[i] += kick * n);
