@@ -45,7 +45,12 @@ pub fn physics_scenes() -> Vec<SceneMaker> {
     ]
 }
 
-pub fn physics(config: &PhysicsConfig, ticks: usize, warmup: usize, only: &[String]) -> Result<PhysicsBench> {
+pub fn physics(
+    config: &PhysicsConfig,
+    ticks: usize,
+    warmup: usize,
+    only: &[String],
+) -> Result<PhysicsBench> {
     let mut scenes = Vec::new();
     for (name, make) in physics_scenes() {
         if !only.is_empty() && !only.iter().any(|o| o == name) {
@@ -91,19 +96,28 @@ pub fn physics(config: &PhysicsConfig, ticks: usize, warmup: usize, only: &[Stri
 // ---- rendering ----
 
 use crate::render::cpu::CpuRenderer;
-use crate::render::{Backend, Camera, GaussianCloud, GaussianParams, PixelGrads, RenderSettings, Roi, logit};
+use crate::render::{
+    Backend, Camera, GaussianCloud, GaussianParams, PixelGrads, RenderSettings, Roi, logit,
+};
 use glam::{Vec3, Vec4};
 
 /// The benchmark's tabletop in Gaussians: a T-block (~500), a robot arm (~10k) and the table
 /// (~10k thin disks), seen by three cameras. Returns the cloud, the cameras at `width` x `height`,
 /// and the index range of the T-block's Gaussians.
-pub fn tblock_render_scene(width: u32, height: u32) -> (GaussianCloud, Vec<Camera>, std::ops::Range<usize>) {
+pub fn tblock_render_scene(
+    width: u32,
+    height: u32,
+) -> (GaussianCloud, Vec<Camera>, std::ops::Range<usize>) {
     let mut cloud = GaussianCloud::default();
     let unit = Vec4::new(0.0, 0.0, 0.0, 1.0);
     // Table: 100 x 100 disks over 1 m^2, a faint checker so it has texture.
     for iy in 0..100 {
         for ix in 0..100 {
-            let shade = if (ix / 10 + iy / 10) % 2 == 0 { 0.15 } else { 0.22 };
+            let shade = if (ix / 10 + iy / 10) % 2 == 0 {
+                0.15
+            } else {
+                0.22
+            };
             cloud.push(GaussianParams {
                 mean: Vec3::new(-0.2 + ix as f32 * 0.01, -0.5 + iy as f32 * 0.01, 0.0),
                 rotation: unit,
@@ -129,8 +143,15 @@ pub fn tblock_render_scene(width: u32, height: u32) -> (GaussianCloud, Vec<Camer
         for k in 0..1667 {
             let along = (k / 40) as f32 / 41.0 - 0.5;
             let angle = (k % 40) as f32 / 40.0 * std::f32::consts::TAU;
-            let p = centre + axis * (0.3 * along) + 0.04 * (side * angle.cos() + other * angle.sin());
-            cloud.push(GaussianParams { mean: p, rotation: unit, log_scale: Vec3::splat(0.007f32.ln()), opacity_logit: logit(0.9), colour: Vec3::splat(0.9) });
+            let p =
+                centre + axis * (0.3 * along) + 0.04 * (side * angle.cos() + other * angle.sin());
+            cloud.push(GaussianParams {
+                mean: p,
+                rotation: unit,
+                log_scale: Vec3::splat(0.007f32.ln()),
+                opacity_logit: logit(0.9),
+                colour: Vec3::splat(0.9),
+            });
         }
     }
     // T-block: a 4-layer lattice at 11.2 mm, one Gaussian per point (480).
@@ -202,50 +223,70 @@ pub fn render(repetitions: usize, save: Option<&std::path::Path>) -> Result<Rend
             std::fs::create_dir_all(dir)?;
             let mut r = CpuRenderer::new(RenderSettings::default());
             for (k, c) in cameras.iter().enumerate() {
-                r.forward(&cloud, c, Roi::full(c)).save_png(&dir.join(format!("tblock_{w}x{h}_cam{k}.png")))?;
+                r.forward(&cloud, c, Roi::full(c))
+                    .save_png(&dir.join(format!("tblock_{w}x{h}_cam{k}.png")))?;
             }
         }
         for window in ["full", "roi"] {
             let rois: Vec<Roi> = cameras
                 .iter()
-                .map(|c| if window == "full" { Roi::full(c) } else { crate::render::footprint_roi(&cloud, &block.clone().collect::<Vec<_>>(), c, 8.0) })
+                .map(|c| {
+                    if window == "full" {
+                        Roi::full(c)
+                    } else {
+                        crate::render::footprint_roi(
+                            &cloud,
+                            &block.clone().collect::<Vec<_>>(),
+                            c,
+                            8.0,
+                        )
+                    }
+                })
                 .collect();
-          for renderer in renderers.iter_mut() {
-            let (mut fwd, mut both) = (Vec::new(), Vec::new());
-            // One untimed pass: pipelines compile and buffers grow on first use.
-            for (c, roi) in cameras.iter().zip(&rois) {
-                renderer.forward(&cloud, c, *roi)?;
-            }
-            for _ in 0..repetitions.max(1) {
-                let t = Instant::now();
+            for renderer in renderers.iter_mut() {
+                let (mut fwd, mut both) = (Vec::new(), Vec::new());
+                // One untimed pass: pipelines compile and buffers grow on first use.
                 for (c, roi) in cameras.iter().zip(&rois) {
                     renderer.forward(&cloud, c, *roi)?;
                 }
-                fwd.push(t.elapsed().as_secs_f64() * 1e3);
-                let t = Instant::now();
-                for (c, roi) in cameras.iter().zip(&rois) {
-                    let out = renderer.forward(&cloud, c, *roi)?;
-                    let grads = PixelGrads { colour: out.colour.iter().map(|c| *c - Vec3::splat(0.5)).collect(), ..Default::default() };
-                    renderer.backward(&cloud, &grads)?;
+                for _ in 0..repetitions.max(1) {
+                    let t = Instant::now();
+                    for (c, roi) in cameras.iter().zip(&rois) {
+                        renderer.forward(&cloud, c, *roi)?;
+                    }
+                    fwd.push(t.elapsed().as_secs_f64() * 1e3);
+                    let t = Instant::now();
+                    for (c, roi) in cameras.iter().zip(&rois) {
+                        let out = renderer.forward(&cloud, c, *roi)?;
+                        let grads = PixelGrads {
+                            colour: out.colour.iter().map(|c| *c - Vec3::splat(0.5)).collect(),
+                            ..Default::default()
+                        };
+                        renderer.backward(&cloud, &grads)?;
+                    }
+                    both.push(t.elapsed().as_secs_f64() * 1e3);
                 }
-                both.push(t.elapsed().as_secs_f64() * 1e3);
+                let forward_backward_ms = median(both);
+                runs.push(RenderTiming {
+                    backend: renderer.name(),
+                    resolution: [w, h],
+                    window,
+                    pixels_per_camera: rois.iter().map(|r| r.pixels()).sum::<usize>() / rois.len(),
+                    gaussians: cloud.len(),
+                    cameras: cameras.len(),
+                    forward_ms: median(fwd),
+                    forward_backward_ms,
+                    forward_backward_ms_per_camera: forward_backward_ms / cameras.len() as f64,
+                });
             }
-            let forward_backward_ms = median(both);
-            runs.push(RenderTiming {
-                backend: renderer.name(),
-                resolution: [w, h],
-                window,
-                pixels_per_camera: rois.iter().map(|r| r.pixels()).sum::<usize>() / rois.len(),
-                gaussians: cloud.len(),
-                cameras: cameras.len(),
-                forward_ms: median(fwd),
-                forward_backward_ms,
-                forward_backward_ms_per_camera: forward_backward_ms / cameras.len() as f64,
-            });
-          }
         }
     }
-    Ok(RenderBench { benchmark: "render", threads: rayon::current_num_threads(), runs, skipped })
+    Ok(RenderBench {
+        benchmark: "render",
+        threads: rayon::current_num_threads(),
+        runs,
+        skipped,
+    })
 }
 
 // ---- whole ticks ----
@@ -287,8 +328,16 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
         config.correct.backend = backend;
         for &(w, h) in resolutions {
             let cameras = scenario::cameras(scenario_name, w, h);
-            let mut truth = Tracker::new(scenario::build(scenario_name, crate::math::Pose::IDENTITY)?, &config, false)?;
-            let mut model = match Tracker::new(scenario::build(scenario_name, crate::math::Pose::IDENTITY)?, &config, true) {
+            let mut truth = Tracker::new(
+                scenario::build(scenario_name, crate::math::Pose::IDENTITY)?,
+                &config,
+                false,
+            )?;
+            let mut model = match Tracker::new(
+                scenario::build(scenario_name, crate::math::Pose::IDENTITY)?,
+                &config,
+                true,
+            ) {
                 Ok(m) => m,
                 Err(e) => {
                     skipped.push(format!("{backend:?}: {e:#}"));
@@ -299,7 +348,14 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
             for k in 0..ticks + 2 {
                 truth.tick(&[])?;
                 let images = scenario::observe(&truth.scene.world, &cameras, 0.01, 1.0, k as u64);
-                let views: Vec<View> = cameras.iter().zip(&images).map(|(c, i)| View { camera: *c, image: i }).collect();
+                let views: Vec<View> = cameras
+                    .iter()
+                    .zip(&images)
+                    .map(|(c, i)| View {
+                        camera: *c,
+                        image: i,
+                    })
+                    .collect();
                 let t = Instant::now();
                 model.scene.advance(&mut model.solver)?;
                 let p = t.elapsed().as_secs_f64() * 1e3;
@@ -327,5 +383,12 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
             });
         }
     }
-    Ok(TickBench { benchmark: "tick", scenario: scenario_name, threads: rayon::current_num_threads(), adam_iterations: crate::correct::CorrectConfig::default().iterations, runs, skipped })
+    Ok(TickBench {
+        benchmark: "tick",
+        scenario: scenario_name,
+        threads: rayon::current_num_threads(),
+        adam_iterations: crate::correct::CorrectConfig::default().iterations,
+        runs,
+        skipped,
+    })
 }

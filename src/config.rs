@@ -60,7 +60,14 @@ pub struct RgbdObjectConfig {
 
 impl Default for RgbdObjectConfig {
     fn default() -> Self {
-        Self { name: String::new(), label: 1, mass: 0.2, particle_radius: 0.005, rope: false, bending_stiffness: 0.3 }
+        Self {
+            name: String::new(),
+            label: 1,
+            mass: 0.2,
+            particle_radius: 0.005,
+            rope: false,
+            bending_stiffness: 0.3,
+        }
     }
 }
 
@@ -88,7 +95,15 @@ pub struct ObjectConfig {
 
 impl Default for ObjectConfig {
     fn default() -> Self {
-        Self { name: String::new(), embodied_gaussians: PathBuf::new(), mass: 0.2, mask: None, align_at_start: true, colour_fit_steps: 100, silhouette_fit_steps: 100 }
+        Self {
+            name: String::new(),
+            embodied_gaussians: PathBuf::new(),
+            mass: 0.2,
+            mask: None,
+            align_at_start: true,
+            colour_fit_steps: 100,
+            silhouette_fit_steps: 100,
+        }
     }
 }
 
@@ -116,7 +131,17 @@ pub struct TableConfig {
 
 impl Default for TableConfig {
     fn default() -> Self {
-        Self { min: Vec2::splat(-0.5), max: Vec2::splat(0.5), spacing: 0.01, fit_steps: 500, fit_frames: 3, fit_span: 0.0, lr: 0.02, fit_resolution: 0.5, drop: 0.01 }
+        Self {
+            min: Vec2::splat(-0.5),
+            max: Vec2::splat(0.5),
+            spacing: 0.01,
+            fit_steps: 500,
+            fit_frames: 3,
+            fit_span: 0.0,
+            lr: 0.02,
+            fit_resolution: 0.5,
+            drop: 0.01,
+        }
     }
 }
 
@@ -126,23 +151,46 @@ impl SceneConfig {
     pub fn validate(&self) -> Result<()> {
         for o in &self.objects {
             if o.name.is_empty() || !(o.mass.is_finite() && o.mass > 0.0) {
-                bail!("scene.objects: every object needs a name and a positive mass ('{}', {})", o.name, o.mass);
+                bail!(
+                    "scene.objects: every object needs a name and a positive mass ('{}', {})",
+                    o.name,
+                    o.mass
+                );
             }
         }
         for o in &self.rgbd_objects {
-            if o.name.is_empty() || o.label == 0 || !(o.mass.is_finite() && o.mass > 0.0) || !(o.particle_radius.is_finite() && o.particle_radius > 0.0) {
-                bail!("scene.rgbd_objects: '{}' needs a name, a label of 1 to 255, a positive mass and particle radius", o.name);
+            if o.name.is_empty()
+                || o.label == 0
+                || !(o.mass.is_finite() && o.mass > 0.0)
+                || !(o.particle_radius.is_finite() && o.particle_radius > 0.0)
+            {
+                bail!(
+                    "scene.rgbd_objects: '{}' needs a name, a label of 1 to 255, a positive mass and particle radius",
+                    o.name
+                );
             }
             if o.rope && !(o.bending_stiffness > 0.0 && o.bending_stiffness <= 1.0) {
-                bail!("scene.rgbd_objects: rope '{}' needs bending_stiffness in (0, 1]", o.name);
+                bail!(
+                    "scene.rgbd_objects: rope '{}' needs bending_stiffness in (0, 1]",
+                    o.name
+                );
             }
         }
         if let Some(t) = &self.table {
             let cells = ((t.max - t.min) / t.spacing).max_element();
-            if !(t.spacing.is_finite() && t.spacing > 0.0) || !(t.min.cmplt(t.max).all()) || !(cells <= 2000.0) {
-                bail!("scene.table: spacing must be positive, min below max, at most 2000 disks a side");
+            if !(t.spacing.is_finite() && t.spacing > 0.0)
+                || !(t.min.cmplt(t.max).all())
+                || !(cells <= 2000.0)
+            {
+                bail!(
+                    "scene.table: spacing must be positive, min below max, at most 2000 disks a side"
+                );
             }
-            if !(t.fit_resolution > 0.0 && t.fit_resolution <= 1.0) || !(t.lr.is_finite() && t.lr >= 0.0) || !(t.fit_span.is_finite() && t.fit_span >= 0.0) || !t.drop.is_finite() {
+            if !(t.fit_resolution > 0.0 && t.fit_resolution <= 1.0)
+                || !(t.lr.is_finite() && t.lr >= 0.0)
+                || !(t.fit_span.is_finite() && t.fit_span >= 0.0)
+                || !t.drop.is_finite()
+            {
                 bail!("scene.table: fit_resolution in (0, 1], lr and fit_span >= 0, drop finite");
             }
         }
@@ -215,7 +263,13 @@ pub struct GroundConfig {
 
 impl Default for GroundConfig {
     fn default() -> Self {
-        Self { enabled: true, normal: Vec3::Z, height: 0.0, static_friction: 0.5, kinetic_friction: 0.4 }
+        Self {
+            enabled: true,
+            normal: Vec3::Z,
+            height: 0.0,
+            static_friction: 0.5,
+            kinetic_friction: 0.4,
+        }
     }
 }
 
@@ -232,7 +286,12 @@ pub struct CollisionConfig {
 
 impl Default for CollisionConfig {
     fn default() -> Self {
-        Self { enabled: true, static_friction: 0.3, kinetic_friction: 0.25, margin: 0.5 }
+        Self {
+            enabled: true,
+            static_friction: 0.3,
+            kinetic_friction: 0.25,
+            margin: 0.5,
+        }
     }
 }
 
@@ -240,10 +299,15 @@ impl PhysicsConfig {
     /// Reject values that would make the solver meaningless instead of silently misbehaving.
     pub fn validate(&self) -> Result<()> {
         if !(self.dt.is_finite() && self.dt > 0.0) {
-            bail!("physics.dt must be a positive number of seconds, got {}", self.dt);
+            bail!(
+                "physics.dt must be a positive number of seconds, got {}",
+                self.dt
+            );
         }
         if self.substeps == 0 || self.iterations == 0 || self.distance_sweeps == 0 {
-            bail!("physics.substeps, physics.iterations and physics.distance_sweeps must be at least 1");
+            bail!(
+                "physics.substeps, physics.iterations and physics.distance_sweeps must be at least 1"
+            );
         }
         if !self.gravity.is_finite() {
             bail!("physics.gravity must be finite");
@@ -252,10 +316,16 @@ impl PhysicsConfig {
             bail!("physics.damping must be in [0, 1], got {}", self.damping);
         }
         if !(self.relaxation > 0.0 && self.relaxation < 2.0) {
-            bail!("physics.relaxation must be in (0, 2), got {}", self.relaxation);
+            bail!(
+                "physics.relaxation must be in (0, 2), got {}",
+                self.relaxation
+            );
         }
         if !(self.shape_stiffness > 0.0 && self.shape_stiffness <= 1.0) {
-            bail!("physics.shape_stiffness must be in (0, 1], got {}", self.shape_stiffness);
+            bail!(
+                "physics.shape_stiffness must be in (0, 1], got {}",
+                self.shape_stiffness
+            );
         }
         if !(self.pin_weight.is_finite() && self.pin_weight >= 1.0) {
             bail!("physics.pin_weight must be >= 1, got {}", self.pin_weight);
@@ -266,8 +336,14 @@ impl PhysicsConfig {
         for (name, mu) in [
             ("ground.static_friction", self.ground.static_friction),
             ("ground.kinetic_friction", self.ground.kinetic_friction),
-            ("collisions.static_friction", self.collisions.static_friction),
-            ("collisions.kinetic_friction", self.collisions.kinetic_friction),
+            (
+                "collisions.static_friction",
+                self.collisions.static_friction,
+            ),
+            (
+                "collisions.kinetic_friction",
+                self.collisions.kinetic_friction,
+            ),
         ] {
             if !(mu.is_finite() && mu >= 0.0) {
                 bail!("physics.{name} must be >= 0, got {mu}");
@@ -283,12 +359,14 @@ impl PhysicsConfig {
 impl Config {
     /// Parse YAML text, with or without the ROS `<node>: ros__parameters:` wrapper.
     pub fn from_yaml(text: &str) -> Result<Self> {
-        let value: serde_yaml_ng::Value = serde_yaml_ng::from_str(text).context("configuration is not valid YAML")?;
+        let value: serde_yaml_ng::Value =
+            serde_yaml_ng::from_str(text).context("configuration is not valid YAML")?;
         let params = ros_parameters(&value).unwrap_or(&value);
         let config: Config = if params.is_null() {
             Config::default()
         } else {
-            serde_yaml_ng::from_value(params.clone()).context("configuration does not match the expected fields")?
+            serde_yaml_ng::from_value(params.clone())
+                .context("configuration does not match the expected fields")?
         };
         config.validated()
     }
@@ -314,7 +392,8 @@ impl Config {
     }
 
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read configuration {}", path.display()))?;
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read configuration {}", path.display()))?;
         Self::from_yaml(&text).with_context(|| format!("in configuration {}", path.display()))
     }
 }
@@ -322,7 +401,8 @@ impl Config {
 /// The `ros__parameters` mapping of the first node in a ROS 2 parameter file, if it is one.
 pub(crate) fn ros_parameters(value: &serde_yaml_ng::Value) -> Option<&serde_yaml_ng::Value> {
     let map = value.as_mapping()?;
-    map.values().find_map(|node| node.as_mapping()?.get("ros__parameters"))
+    map.values()
+        .find_map(|node| node.as_mapping()?.get("ros__parameters"))
 }
 
 #[cfg(test)]
@@ -333,7 +413,11 @@ mod tests {
     fn shipped_config_parses_and_matches_defaults() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/pegs.yaml");
         let c = Config::load(&path).expect("config/pegs.yaml must load");
-        assert_eq!(c, Config::default(), "config/pegs.yaml documents the defaults; keep them equal");
+        assert_eq!(
+            c,
+            Config::default(),
+            "config/pegs.yaml documents the defaults; keep them equal"
+        );
     }
 
     #[test]
@@ -355,7 +439,8 @@ mod tests {
     #[test]
     fn plain_mapping_and_ros_wrapper_are_both_accepted() {
         let plain = Config::from_yaml("physics:\n  substeps: 7\n").unwrap();
-        let ros = Config::from_yaml("pegs:\n  ros__parameters:\n    physics:\n      substeps: 7\n").unwrap();
+        let ros = Config::from_yaml("pegs:\n  ros__parameters:\n    physics:\n      substeps: 7\n")
+            .unwrap();
         assert_eq!(plain.physics.substeps, 7);
         assert_eq!(plain, ros);
         assert_eq!(Config::from_yaml("").unwrap(), Config::default());
@@ -373,11 +458,16 @@ mod tests {
 
     #[test]
     fn bad_scene_values_are_rejected() {
-        let e = Config::from_yaml("scene:\n  rgbd_objects:\n    - {name: box, label: 0}\n").unwrap_err();
+        let e = Config::from_yaml("scene:\n  rgbd_objects:\n    - {name: box, label: 0}\n")
+            .unwrap_err();
         assert!(format!("{e:#}").contains("rgbd_objects"), "{e:#}");
-        let e = Config::from_yaml("scene:\n  table: {min: [0, 0], max: [1, 1], spacing: 0}\n").unwrap_err();
+        let e = Config::from_yaml("scene:\n  table: {min: [0, 0], max: [1, 1], spacing: 0}\n")
+            .unwrap_err();
         assert!(format!("{e:#}").contains("scene.table"), "{e:#}");
-        let e = Config::from_yaml("scene:\n  objects:\n    - {name: t, embodied_gaussians: t.json, mass: -1}\n").unwrap_err();
+        let e = Config::from_yaml(
+            "scene:\n  objects:\n    - {name: t, embodied_gaussians: t.json, mass: -1}\n",
+        )
+        .unwrap_err();
         assert!(format!("{e:#}").contains("scene.objects"), "{e:#}");
         assert!(Config::from_yaml("scene:\n  table: {min: [0, 0], max: [1, 1]}\n").is_ok());
     }
@@ -406,16 +496,20 @@ pub struct ModelFile {
 
 impl ModelFile {
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read model file {}", path.display()))?;
-        let model: ModelFile = serde_yaml_ng::from_str(&text).with_context(|| format!("in model file {}", path.display()))?;
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read model file {}", path.display()))?;
+        let model: ModelFile = serde_yaml_ng::from_str(&text)
+            .with_context(|| format!("in model file {}", path.display()))?;
         for e in &model.effects {
-            e.validate().with_context(|| format!("in model file {}", path.display()))?;
+            e.validate()
+                .with_context(|| format!("in model file {}", path.display()))?;
         }
         Ok(model)
     }
 
     pub fn save(&self, path: &Path) -> Result<()> {
-        std::fs::write(path, serde_yaml_ng::to_string(self)?).with_context(|| format!("cannot write {}", path.display()))
+        std::fs::write(path, serde_yaml_ng::to_string(self)?)
+            .with_context(|| format!("cannot write {}", path.display()))
     }
 
     /// `config` with this file's effects added to its physics.
@@ -435,12 +529,25 @@ mod model_file_tests {
         let dir = std::env::temp_dir().join(format!("pegs-model-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("model.yaml");
-        let model = ModelFile { source: "test".into(), effects: vec![Effect::ViscousDrag { object: Some("box".into()), coefficient: 0.9 }] };
+        let model = ModelFile {
+            source: "test".into(),
+            effects: vec![Effect::ViscousDrag {
+                object: Some("box".into()),
+                coefficient: 0.9,
+            }],
+        };
         model.save(&path).unwrap();
         assert_eq!(ModelFile::load(&path).unwrap(), model);
         let config = model.apply(&Config::default());
         assert_eq!(config.physics.effects, model.effects);
-        std::fs::write(&path, "effects:\n  - effect: viscous_drag\n    coefficient: -1.0\n").unwrap();
-        assert!(format!("{:#}", ModelFile::load(&path).unwrap_err()).contains("coefficient must be >= 0"));
+        std::fs::write(
+            &path,
+            "effects:\n  - effect: viscous_drag\n    coefficient: -1.0\n",
+        )
+        .unwrap();
+        assert!(
+            format!("{:#}", ModelFile::load(&path).unwrap_err())
+                .contains("coefficient must be >= 0")
+        );
     }
 }

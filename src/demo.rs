@@ -37,18 +37,37 @@ pub struct DemoSummary {
 /// Render the world's Gaussians from a camera overlooking the table (CPU backend).
 fn snapshot(world: &crate::world::World, path: &Path) -> Result<()> {
     use crate::render::{Camera, GaussianCloud, RenderSettings, Roi, cpu::CpuRenderer};
-    let camera = Camera::look_at(640, 360, 420.0, glam::Vec3::new(1.25, -0.55, 0.75), glam::Vec3::new(0.45, 0.0, 0.05));
-    let settings = RenderSettings { background: glam::Vec3::new(0.12, 0.12, 0.14), ..RenderSettings::default() };
-    CpuRenderer::new(settings).forward(&GaussianCloud::from_world(world), &camera, Roi::full(&camera)).save_png(path)
+    let camera = Camera::look_at(
+        640,
+        360,
+        420.0,
+        glam::Vec3::new(1.25, -0.55, 0.75),
+        glam::Vec3::new(0.45, 0.0, 0.05),
+    );
+    let settings = RenderSettings {
+        background: glam::Vec3::new(0.12, 0.12, 0.14),
+        ..RenderSettings::default()
+    };
+    CpuRenderer::new(settings)
+        .forward(
+            &GaussianCloud::from_world(world),
+            &camera,
+            Roi::full(&camera),
+        )
+        .save_png(path)
 }
 
 pub fn run(config: &Config, out_dir: &Path, seconds: f64) -> Result<DemoSummary> {
-    std::fs::create_dir_all(out_dir).with_context(|| format!("cannot create {}", out_dir.display()))?;
+    std::fs::create_dir_all(out_dir)
+        .with_context(|| format!("cannot create {}", out_dir.display()))?;
     let mut scene = builtin::tabletop()?;
     let mut solver = Solver::new(config.physics.clone(), &scene.world)?;
     let mut writer = TrajectoryWriter::create(&out_dir.join("trajectory.csv"))?;
     let dynamic: Vec<u32> = scene.world.shapes.dynamic_ids().collect();
-    let start: Vec<glam::Vec3> = dynamic.iter().map(|&s| scene.world.shapes.pose[s as usize].translation).collect();
+    let start: Vec<glam::Vec3> = dynamic
+        .iter()
+        .map(|&s| scene.world.shapes.pose[s as usize].translation)
+        .collect();
     let mut travelled = vec![0.0f32; dynamic.len()];
     let mut deviation = vec![0.0f32; dynamic.len()];
     let ticks = (seconds / config.physics.dt as f64).round() as usize;
@@ -56,10 +75,15 @@ pub fn run(config: &Config, out_dir: &Path, seconds: f64) -> Result<DemoSummary>
     snapshot(&scene.world, &out_dir.join("start.png"))?;
     let clock = std::time::Instant::now();
     for _ in 0..ticks {
-        let before: Vec<glam::Vec3> = dynamic.iter().map(|&s| scene.world.shapes.pose[s as usize].translation).collect();
+        let before: Vec<glam::Vec3> = dynamic
+            .iter()
+            .map(|&s| scene.world.shapes.pose[s as usize].translation)
+            .collect();
         scene.advance(&mut solver)?;
         for (k, &s) in dynamic.iter().enumerate() {
-            travelled[k] += scene.world.shapes.pose[s as usize].translation.distance(before[k]);
+            travelled[k] += scene.world.shapes.pose[s as usize]
+                .translation
+                .distance(before[k]);
             if scene.world.shapes.kind[s as usize] == crate::world::ShapeKind::Rigid {
                 deviation[k] = deviation[k].max(scene.world.rigid_deviation(s));
             }
@@ -89,7 +113,10 @@ pub fn run(config: &Config, out_dir: &Path, seconds: f64) -> Result<DemoSummary>
         wall_ms_per_tick,
         objects,
     };
-    std::fs::write(out_dir.join("summary.json"), serde_json::to_string_pretty(&summary)?)?;
+    std::fs::write(
+        out_dir.join("summary.json"),
+        serde_json::to_string_pretty(&summary)?,
+    )?;
     Ok(summary)
 }
 
@@ -101,11 +128,25 @@ const STORY_HEIGHT: u32 = 90;
 /// and replayed under `out_dir/story/<scenario>`, judged against the hidden truth; writes
 /// `out_dir/story.md` (what was hidden, what pegs found, before and after) and returns the verdict.
 pub fn story(out_dir: &Path, scenario: &str) -> Result<Verdict> {
-    anyhow::ensure!(concealed::NAMES.contains(&scenario), "unknown concealed scenario {scenario:?} (known: {})", concealed::NAMES.join(", "));
-    let (verdicts, table) = concealed_table::run(&out_dir.join("story"), &[scenario.to_string()], STORY_WIDTH, STORY_HEIGHT, true)?;
+    anyhow::ensure!(
+        concealed::NAMES.contains(&scenario),
+        "unknown concealed scenario {scenario:?} (known: {})",
+        concealed::NAMES.join(", ")
+    );
+    let (verdicts, table) = concealed_table::run(
+        &out_dir.join("story"),
+        &[scenario.to_string()],
+        STORY_WIDTH,
+        STORY_HEIGHT,
+        true,
+    )?;
     let verdict = verdicts.into_iter().next().context("no verdict")?;
     let found = match verdict.estimate {
-        Some(e) => format!("**{}** with parameter {e:.4} (truth {:.4})", verdict.named, verdict.truth_value.unwrap_or(f32::NAN)),
+        Some(e) => format!(
+            "**{}** with parameter {e:.4} (truth {:.4})",
+            verdict.named,
+            verdict.truth_value.unwrap_or(f32::NAN)
+        ),
         None => format!("**{}**", verdict.named),
     };
     let md = format!(

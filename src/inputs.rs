@@ -43,8 +43,15 @@ impl fmt::Display for Rejection {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Self::BadImage(why) => write!(f, "{why}"),
-            Self::OutOfOrder { stamp, newest } => write!(f, "stamp {stamp:.3} s is not after the newest {newest:.3} s (duplicate or out of order)"),
-            Self::Future { stamp, now } => write!(f, "stamp {stamp:.3} s is {:.3} s in the future", stamp - now),
+            Self::OutOfOrder { stamp, newest } => write!(
+                f,
+                "stamp {stamp:.3} s is not after the newest {newest:.3} s (duplicate or out of order)"
+            ),
+            Self::Future { stamp, now } => write!(
+                f,
+                "stamp {stamp:.3} s is {:.3} s in the future",
+                stamp - now
+            ),
             Self::Malformed(why) => write!(f, "malformed: {why}"),
             Self::NonFinite(names) => write!(f, "non-finite values for {}", names.join(", ")),
         }
@@ -77,7 +84,9 @@ struct StampOrder {
 enum Order {
     Next,
     /// Stamps jumped back for good: forget the stream's history and start again from this one.
-    Restart { back_s: f64 },
+    Restart {
+        back_s: f64,
+    },
 }
 
 impl StampOrder {
@@ -95,7 +104,9 @@ impl StampOrder {
                     if self.jumped_back >= RESTART_AFTER {
                         self.jumped_back = 0;
                         self.newest = Some(stamp);
-                        return Ok(Order::Restart { back_s: newest - stamp });
+                        return Ok(Order::Restart {
+                            back_s: newest - stamp,
+                        });
                     }
                 }
                 Err(Rejection::OutOfOrder { stamp, newest })
@@ -158,7 +169,13 @@ pub struct TickInputs {
 
 impl TickInputs {
     pub fn views(&self) -> Vec<View<'_>> {
-        self.images.iter().map(|i| View { camera: i.camera, image: &i.pixels }).collect()
+        self.images
+            .iter()
+            .map(|i| View {
+                camera: i.camera,
+                image: &i.pixels,
+            })
+            .collect()
     }
 }
 
@@ -183,15 +200,34 @@ impl Inputs {
     /// `robot`: the model whose joints the joint states name, with the joint positions to start
     /// from; None when the scene has no robot (joint states are then ignored).
     pub fn new(cameras: Vec<(String, Camera)>, robot: Option<(&RobotModel, &[f64])>) -> Self {
-        let cameras = cameras.into_iter().map(|(name, camera)| CameraFeed { name, camera, latest: None, order: StampOrder::default(), accepted: 0, rejected: 0 }).collect();
+        let cameras = cameras
+            .into_iter()
+            .map(|(name, camera)| CameraFeed {
+                name,
+                camera,
+                latest: None,
+                order: StampOrder::default(),
+                accepted: 0,
+                rejected: 0,
+            })
+            .collect();
         let joints = robot.map(|(model, q)| {
             let mut tracker = JointStateTracker::new(model);
             if q.len() == tracker.positions.len() {
                 tracker.positions.copy_from_slice(q);
             }
-            Joints { tracker, trajectory: JointTrajectory::default(), order: StampOrder::default() }
+            Joints {
+                tracker,
+                trajectory: JointTrajectory::default(),
+                order: StampOrder::default(),
+            }
         });
-        Self { cameras, joints, log: InputLog::default(), rejections: Default::default() }
+        Self {
+            cameras,
+            joints,
+            log: InputLog::default(),
+            rejections: Default::default(),
+        }
     }
 
     pub fn camera_index(&self, name: &str) -> Option<usize> {
@@ -213,7 +249,9 @@ impl Inputs {
         let stamp = image.header.stamp.seconds();
         let feed = &mut self.cameras[c];
         let name = feed.name.clone();
-        let checked = decode_image(image, &feed.camera).map_err(Rejection::BadImage).and_then(|pixels| feed.order.check(stamp, now).map(|o| (o, pixels)));
+        let checked = decode_image(image, &feed.camera)
+            .map_err(Rejection::BadImage)
+            .and_then(|pixels| feed.order.check(stamp, now).map(|o| (o, pixels)));
         match checked {
             Ok((order, pixels)) => {
                 if let Order::Restart { back_s } = order {
@@ -236,15 +274,35 @@ impl Inputs {
     /// used; unknown joint names are reported once and skipped.
     pub fn offer_joint_state(&mut self, js: &JointState, now: f64) -> Result<(), Rejection> {
         let stamp = js.header.stamp.seconds();
-        let Some(joints) = &mut self.joints else { return Ok(()) };
+        let Some(joints) = &mut self.joints else {
+            return Ok(());
+        };
         let what = format!("joint state at {stamp:.3} s");
         if js.name.len() != js.position.len() {
             self.log.joint_states_rejected += 1;
-            return Err(self.refuse(what, Rejection::Malformed(format!("{} names but {} positions", js.name.len(), js.position.len()))));
+            return Err(self.refuse(
+                what,
+                Rejection::Malformed(format!(
+                    "{} names but {} positions",
+                    js.name.len(),
+                    js.position.len()
+                )),
+            ));
         }
         // Decide on the whole message before changing anything.
-        let known_finite = js.name.iter().zip(&js.position).filter(|(n, v)| v.is_finite() && joints.tracker.knows(n)).count();
-        let non_finite: Vec<String> = js.name.iter().zip(&js.position).filter(|(n, v)| !v.is_finite() && joints.tracker.knows(n)).map(|(n, _)| n.clone()).collect();
+        let known_finite = js
+            .name
+            .iter()
+            .zip(&js.position)
+            .filter(|(n, v)| v.is_finite() && joints.tracker.knows(n))
+            .count();
+        let non_finite: Vec<String> = js
+            .name
+            .iter()
+            .zip(&js.position)
+            .filter(|(n, v)| !v.is_finite() && joints.tracker.knows(n))
+            .map(|(n, _)| n.clone())
+            .collect();
         if known_finite == 0 && !non_finite.is_empty() {
             self.log.joint_states_rejected += 1;
             return Err(self.refuse(what, Rejection::NonFinite(non_finite)));
@@ -262,10 +320,14 @@ impl Inputs {
         }
         let report = joints.tracker.update(&js.name, &js.position);
         for name in report.new_unknown {
-            self.log.lines.push(format!("joint state names unknown joint '{name}'; that value is ignored"));
+            self.log.lines.push(format!(
+                "joint state names unknown joint '{name}'; that value is ignored"
+            ));
             self.log.unknown_joints.insert(name);
         }
-        joints.trajectory.push(stamp, joints.tracker.positions.clone());
+        joints
+            .trajectory
+            .push(stamp, joints.tracker.positions.clone());
         if !report.rejected_non_finite.is_empty() {
             let why = Rejection::NonFinite(report.rejected_non_finite);
             self.refuse(format!("{what} (other joints used)"), why);
@@ -293,7 +355,12 @@ impl Inputs {
             let age = feed.latest.as_ref().map(|(stamp, _)| t - stamp);
             out.ages.push((feed.name.clone(), age));
             match (&feed.latest, age) {
-                (Some((stamp, pixels)), Some(a)) if a <= max_age => out.images.push(TickImage { name: feed.name.clone(), stamp: *stamp, camera: feed.camera, pixels: pixels.clone() }),
+                (Some((stamp, pixels)), Some(a)) if a <= max_age => out.images.push(TickImage {
+                    name: feed.name.clone(),
+                    stamp: *stamp,
+                    camera: feed.camera,
+                    pixels: pixels.clone(),
+                }),
                 (Some(_), _) => out.stale.push(feed.name.clone()),
                 (None, _) => {}
             }
@@ -306,23 +373,37 @@ impl Inputs {
 /// the boundary); an explanation otherwise.
 pub fn decode_image(img: &Image, camera: &Camera) -> Result<Vec<Vec3>, String> {
     if img.width != camera.width || img.height != camera.height {
-        return Err(format!("image is {}x{}, CameraInfo says {}x{}", img.width, img.height, camera.width, camera.height));
+        return Err(format!(
+            "image is {}x{}, CameraInfo says {}x{}",
+            img.width, img.height, camera.width, camera.height
+        ));
     }
     let bgr = match img.encoding.as_str() {
         "rgb8" => false,
         "bgr8" => true,
-        other => return Err(format!("unsupported encoding '{other}' (rgb8 and bgr8 are)")),
+        other => {
+            return Err(format!(
+                "unsupported encoding '{other}' (rgb8 and bgr8 are)"
+            ));
+        }
     };
     let step = img.step as usize;
     let (w, h) = (img.width as usize, img.height as usize);
     if step < 3 * w || img.data.len() < step * h {
-        return Err(format!("image data of {} bytes is too short for {w}x{h} with step {step}", img.data.len()));
+        return Err(format!(
+            "image data of {} bytes is too short for {w}x{h} with step {step}",
+            img.data.len()
+        ));
     }
     let mut out = Vec::with_capacity(w * h);
     for y in 0..h {
         for x in 0..w {
             let p = &img.data[y * step + 3 * x..y * step + 3 * x + 3];
-            let (r, g, b) = if bgr { (p[2], p[1], p[0]) } else { (p[0], p[1], p[2]) };
+            let (r, g, b) = if bgr {
+                (p[2], p[1], p[0])
+            } else {
+                (p[0], p[1], p[2])
+            };
             out.push(Vec3::new(r as f32, g as f32, b as f32) / 255.0);
         }
     }
@@ -337,33 +418,100 @@ mod tests {
     use crate::robot::{GeometrySource, PackagePaths};
 
     fn camera() -> Camera {
-        Camera { width: 2, height: 1, fx: 1.0, fy: 1.0, cx: 1.0, cy: 0.5, world_to_camera: Pose::IDENTITY }
+        Camera {
+            width: 2,
+            height: 1,
+            fx: 1.0,
+            fy: 1.0,
+            cx: 1.0,
+            cy: 0.5,
+            world_to_camera: Pose::IDENTITY,
+        }
     }
 
     fn image(t: f64) -> Image {
-        Image { header: Header { stamp: Time::from_seconds(t), frame_id: "cam".into() }, width: 2, height: 1, encoding: "rgb8".into(), step: 6, data: vec![255, 0, 0, 0, 0, 255], ..Default::default() }
+        Image {
+            header: Header {
+                stamp: Time::from_seconds(t),
+                frame_id: "cam".into(),
+            },
+            width: 2,
+            height: 1,
+            encoding: "rgb8".into(),
+            step: 6,
+            data: vec![255, 0, 0, 0, 0, 255],
+            ..Default::default()
+        }
     }
 
     fn robot() -> RobotModel {
         let urdf = r#"<robot name="t"><link name="a"/><link name="b"/>
           <joint name="j1" type="continuous"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/></joint></robot>"#;
-        RobotModel::parse(urdf, std::path::Path::new("."), &PackagePaths::default(), GeometrySource::Collision).unwrap()
+        RobotModel::parse(
+            urdf,
+            std::path::Path::new("."),
+            &PackagePaths::default(),
+            GeometrySource::Collision,
+        )
+        .unwrap()
     }
 
     fn joint_state(t: f64, names: &[&str], q: &[f64]) -> JointState {
-        JointState { header: Header { stamp: Time::from_seconds(t), frame_id: String::new() }, name: names.iter().map(|s| s.to_string()).collect(), position: q.to_vec(), ..Default::default() }
+        JointState {
+            header: Header {
+                stamp: Time::from_seconds(t),
+                frame_id: String::new(),
+            },
+            name: names.iter().map(|s| s.to_string()).collect(),
+            position: q.to_vec(),
+            ..Default::default()
+        }
     }
 
     #[test]
     fn bgr_and_rgb_decode_to_the_same_colours_and_bad_images_are_explained() {
         let cam = camera();
         let rgb = image(0.0);
-        let bgr = Image { encoding: "bgr8".into(), data: vec![0, 0, 255, 255, 0, 0], ..rgb.clone() };
+        let bgr = Image {
+            encoding: "bgr8".into(),
+            data: vec![0, 0, 255, 255, 0, 0],
+            ..rgb.clone()
+        };
         assert_eq!(decode_image(&rgb, &cam).unwrap(), vec![Vec3::X, Vec3::Z]);
         assert_eq!(decode_image(&bgr, &cam).unwrap(), vec![Vec3::X, Vec3::Z]);
-        assert!(decode_image(&Image { encoding: "mono16".into(), ..rgb.clone() }, &cam).unwrap_err().contains("mono16"));
-        assert!(decode_image(&Image { width: 3, ..rgb.clone() }, &cam).unwrap_err().contains("CameraInfo"));
-        assert!(decode_image(&Image { data: vec![1, 2], ..rgb }, &cam).unwrap_err().contains("too short"));
+        assert!(
+            decode_image(
+                &Image {
+                    encoding: "mono16".into(),
+                    ..rgb.clone()
+                },
+                &cam
+            )
+            .unwrap_err()
+            .contains("mono16")
+        );
+        assert!(
+            decode_image(
+                &Image {
+                    width: 3,
+                    ..rgb.clone()
+                },
+                &cam
+            )
+            .unwrap_err()
+            .contains("CameraInfo")
+        );
+        assert!(
+            decode_image(
+                &Image {
+                    data: vec![1, 2],
+                    ..rgb
+                },
+                &cam
+            )
+            .unwrap_err()
+            .contains("too short")
+        );
     }
 
     #[test]
@@ -371,17 +519,48 @@ mod tests {
         let mut inputs = Inputs::new(vec![("a".into(), camera())], None);
         inputs.offer_image(0, &image(1.0), 1.0).unwrap();
         let bad = [
-            Image { encoding: "mono8".into(), ..image(1.1) },
-            Image { width: 4, ..image(1.2) },
-            Image { data: vec![0; 3], ..image(1.3) },
+            Image {
+                encoding: "mono8".into(),
+                ..image(1.1)
+            },
+            Image {
+                width: 4,
+                ..image(1.2)
+            },
+            Image {
+                data: vec![0; 3],
+                ..image(1.3)
+            },
         ];
         for b in &bad {
-            assert!(matches!(inputs.offer_image(0, b, 1.5), Err(Rejection::BadImage(_))));
+            assert!(matches!(
+                inputs.offer_image(0, b, 1.5),
+                Err(Rejection::BadImage(_))
+            ));
         }
-        assert!(matches!(inputs.offer_image(0, &image(1.0), 1.5), Err(Rejection::OutOfOrder { .. })), "duplicate stamp");
-        assert!(matches!(inputs.offer_image(0, &image(0.9), 1.5), Err(Rejection::OutOfOrder { .. })), "reordered");
-        assert!(matches!(inputs.offer_image(0, &image(9.0), 1.5), Err(Rejection::Future { .. })));
-        assert_eq!(inputs.cameras[0].latest.as_ref().unwrap().0, 1.0, "the good image stays the newest");
+        assert!(
+            matches!(
+                inputs.offer_image(0, &image(1.0), 1.5),
+                Err(Rejection::OutOfOrder { .. })
+            ),
+            "duplicate stamp"
+        );
+        assert!(
+            matches!(
+                inputs.offer_image(0, &image(0.9), 1.5),
+                Err(Rejection::OutOfOrder { .. })
+            ),
+            "reordered"
+        );
+        assert!(matches!(
+            inputs.offer_image(0, &image(9.0), 1.5),
+            Err(Rejection::Future { .. })
+        ));
+        assert_eq!(
+            inputs.cameras[0].latest.as_ref().unwrap().0,
+            1.0,
+            "the good image stays the newest"
+        );
         assert_eq!(inputs.log.images_rejected, 6);
         assert_eq!(inputs.rejections["bad_image"], 3);
         assert!(inputs.log.take_lines().iter().any(|l| l.contains("mono8")));
@@ -392,17 +571,36 @@ mod tests {
         let mut inputs = Inputs::new(vec![("a".into(), camera())], None);
         inputs.offer_image(0, &image(10.0), 10.0).unwrap();
         for k in 0..RESTART_AFTER - 1 {
-            assert!(inputs.offer_image(0, &image(2.0 + k as f64 * 0.1), 10.5).is_err());
+            assert!(
+                inputs
+                    .offer_image(0, &image(2.0 + k as f64 * 0.1), 10.5)
+                    .is_err()
+            );
         }
-        inputs.offer_image(0, &image(2.5), 10.5).expect("the third message after the jump restarts the stream");
+        inputs
+            .offer_image(0, &image(2.5), 10.5)
+            .expect("the third message after the jump restarts the stream");
         assert_eq!(inputs.cameras[0].latest.as_ref().unwrap().0, 2.5);
-        assert!(inputs.log.take_lines().iter().any(|l| l.contains("jumped back")));
+        assert!(
+            inputs
+                .log
+                .take_lines()
+                .iter()
+                .any(|l| l.contains("jumped back"))
+        );
         inputs.offer_image(0, &image(2.6), 10.6).unwrap();
     }
 
     #[test]
     fn stale_and_missing_cameras_are_left_out_of_the_tick_with_their_ages() {
-        let mut inputs = Inputs::new(vec![("a".into(), camera()), ("b".into(), camera()), ("c".into(), camera())], None);
+        let mut inputs = Inputs::new(
+            vec![
+                ("a".into(), camera()),
+                ("b".into(), camera()),
+                ("c".into(), camera()),
+            ],
+            None,
+        );
         inputs.offer_image(0, &image(1.0), 1.0).unwrap();
         inputs.offer_image(1, &image(0.2), 1.0).unwrap();
         let tick = inputs.tick_inputs(1.1, 0.5);
@@ -417,12 +615,25 @@ mod tests {
     fn joint_states_skip_bad_values_and_unknown_names_and_extend_to_the_tick() {
         let model = robot();
         let mut inputs = Inputs::new(vec![], Some((&model, &[0.0])));
-        inputs.offer_joint_state(&joint_state(0.0, &["j1"], &[0.0]), 0.0).unwrap();
-        inputs.offer_joint_state(&joint_state(0.1, &["j1", "mystery"], &[0.1, 5.0]), 0.1).unwrap();
+        inputs
+            .offer_joint_state(&joint_state(0.0, &["j1"], &[0.0]), 0.0)
+            .unwrap();
+        inputs
+            .offer_joint_state(&joint_state(0.1, &["j1", "mystery"], &[0.1, 5.0]), 0.1)
+            .unwrap();
         assert!(inputs.log.unknown_joints.contains("mystery"));
-        assert!(matches!(inputs.offer_joint_state(&joint_state(0.15, &["j1"], &[f64::NAN]), 0.15), Err(Rejection::NonFinite(_))));
-        assert!(matches!(inputs.offer_joint_state(&joint_state(0.2, &["j1"], &[]), 0.2), Err(Rejection::Malformed(_))));
-        assert!(matches!(inputs.offer_joint_state(&joint_state(0.05, &["j1"], &[9.0]), 0.2), Err(Rejection::OutOfOrder { .. })));
+        assert!(matches!(
+            inputs.offer_joint_state(&joint_state(0.15, &["j1"], &[f64::NAN]), 0.15),
+            Err(Rejection::NonFinite(_))
+        ));
+        assert!(matches!(
+            inputs.offer_joint_state(&joint_state(0.2, &["j1"], &[]), 0.2),
+            Err(Rejection::Malformed(_))
+        ));
+        assert!(matches!(
+            inputs.offer_joint_state(&joint_state(0.05, &["j1"], &[9.0]), 0.2),
+            Err(Rejection::OutOfOrder { .. })
+        ));
         let trajectory = inputs.trajectory_for(0.13).unwrap();
         // Linear extension of the last two samples (slope 1 rad/s) for 30 ms.
         assert!((trajectory.at(0.13).unwrap()[0] - 0.13).abs() < 1e-9);

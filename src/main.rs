@@ -6,7 +6,11 @@ use pegs::config::Config;
 use std::path::PathBuf;
 
 #[derive(Parser)]
-#[command(name = "pegs", version, about = "Physically embodied Gaussian splatting: a realtime, correctable world model")]
+#[command(
+    name = "pegs",
+    version,
+    about = "Physically embodied Gaussian splatting: a realtime, correctable world model"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -155,20 +159,32 @@ enum ImportFormat {
 
 /// The configuration at `config`, with the effects of the model file at `model` (if any) added.
 /// The configuration file (the defaults without one) with a model file's effects added.
-fn load_with_model(config: Option<&std::path::Path>, model: Option<&std::path::Path>) -> Result<Config> {
+fn load_with_model(
+    config: Option<&std::path::Path>,
+    model: Option<&std::path::Path>,
+) -> Result<Config> {
     let config = match config {
         Some(path) => Config::load(path)?,
         None => Config::default(),
     };
     let Some(path) = model else { return Ok(config) };
     let model = pegs::config::ModelFile::load(path)?;
-    println!("model {}: {} effect(s) added", path.display(), model.effects.len());
+    println!(
+        "model {}: {} effect(s) added",
+        path.display(),
+        model.effects.len()
+    );
     Ok(model.apply(&config))
 }
 
 fn parse_resolution(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s.split_once('x').ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT"))?;
-    let (w, h) = (w.parse::<u32>().map_err(|e| format!("{s}: {e}"))?, h.parse::<u32>().map_err(|e| format!("{s}: {e}"))?);
+    let (w, h) = s
+        .split_once('x')
+        .ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT"))?;
+    let (w, h) = (
+        w.parse::<u32>().map_err(|e| format!("{s}: {e}"))?,
+        h.parse::<u32>().map_err(|e| format!("{s}: {e}"))?,
+    );
     if w == 0 || h == 0 {
         return Err(format!("{s}: empty image"));
     }
@@ -286,20 +302,40 @@ fn load_config(path: &Option<PathBuf>) -> Result<Config> {
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
-        Command::Demo { config, out, seconds, story } => {
+        Command::Demo {
+            config,
+            out,
+            seconds,
+            story,
+        } => {
             let config = load_config(&config)?;
             let summary = pegs::demo::run(&config, &out, seconds)?;
             println!(
                 "demo '{}': {} ticks, {} particles, {} Gaussians, {:.2} ms per tick",
-                summary.scene, summary.ticks, summary.particles, summary.gaussians, summary.wall_ms_per_tick
+                summary.scene,
+                summary.ticks,
+                summary.particles,
+                summary.gaussians,
+                summary.wall_ms_per_tick
             );
             for o in &summary.objects {
                 println!(
                     "  {:<8} start ({:+.3}, {:+.3}, {:+.3}) end ({:+.3}, {:+.3}, {:+.3}) travelled {:.3} m, max rigid deviation {:.2} mm",
-                    o.object, o.start[0], o.start[1], o.start[2], o.end[0], o.end[1], o.end[2], o.travelled_m, o.max_rigid_deviation_m * 1e3
+                    o.object,
+                    o.start[0],
+                    o.start[1],
+                    o.start[2],
+                    o.end[0],
+                    o.end[1],
+                    o.end[2],
+                    o.travelled_m,
+                    o.max_rigid_deviation_m * 1e3
                 );
             }
-            println!("wrote trajectory.csv, summary.json, start.png and end.png in {}", out.display());
+            println!(
+                "wrote trajectory.csv, summary.json, start.png and end.png in {}",
+                out.display()
+            );
             if story != "none" {
                 println!("diagnosis story on {story} (a few minutes)");
                 let v = pegs::demo::story(&out, &story)?;
@@ -307,7 +343,9 @@ fn main() -> Result<()> {
                     "  hidden {}, named {}{}; 1 s open-loop error {:.1} -> {:.1} mm; {}",
                     v.truth,
                     v.named,
-                    v.estimate.zip(v.truth_value).map_or(String::new(), |(e, t)| format!(" {e:.4} (truth {t:.4})")),
+                    v.estimate
+                        .zip(v.truth_value)
+                        .map_or(String::new(), |(e, t)| format!(" {e:.4} (truth {t:.4})")),
                     v.open_loop_before_mm,
                     v.open_loop_after_mm,
                     if v.passed() { "passed" } else { "failed" }
@@ -315,7 +353,16 @@ fn main() -> Result<()> {
                 println!("wrote {}", out.join("story.md").display());
             }
         }
-        Command::Bench { what: BenchTarget::Physics { json, config, ticks, warmup, scene } } => {
+        Command::Bench {
+            what:
+                BenchTarget::Physics {
+                    json,
+                    config,
+                    ticks,
+                    warmup,
+                    scene,
+                },
+        } => {
             let config = load_config(&config)?;
             let report = pegs::bench::physics(&config.physics, ticks.max(1), warmup, &scene)?;
             if json {
@@ -324,12 +371,23 @@ fn main() -> Result<()> {
                 for s in &report.scenes {
                     println!(
                         "{:<16} {:>6} dynamic {:>6} kinematic: {:8.2} ms/tick (median of {})",
-                        s.scene, s.dynamic_particles, s.kinematic_particles, s.ms_per_tick_median, s.ticks
+                        s.scene,
+                        s.dynamic_particles,
+                        s.kinematic_particles,
+                        s.ms_per_tick_median,
+                        s.ticks
                     );
                 }
             }
         }
-        Command::Bench { what: BenchTarget::Render { json, repetitions, save } } => {
+        Command::Bench {
+            what:
+                BenchTarget::Render {
+                    json,
+                    repetitions,
+                    save,
+                },
+        } => {
             let report = pegs::bench::render(repetitions, save.as_deref())?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
@@ -337,12 +395,27 @@ fn main() -> Result<()> {
                 for r in &report.runs {
                     println!(
                         "{:<4} {}x{} {:<4} {:>7} px/cam: forward {:8.2} ms, forward+backward {:8.2} ms ({:.2} ms per camera)",
-                        r.backend, r.resolution[0], r.resolution[1], r.window, r.pixels_per_camera, r.forward_ms, r.forward_backward_ms, r.forward_backward_ms_per_camera
+                        r.backend,
+                        r.resolution[0],
+                        r.resolution[1],
+                        r.window,
+                        r.pixels_per_camera,
+                        r.forward_ms,
+                        r.forward_backward_ms,
+                        r.forward_backward_ms_per_camera
                     );
                 }
             }
         }
-        Command::Scenario { what: ScenarioCommand::Table { out, width, height, readme } } => {
+        Command::Scenario {
+            what:
+                ScenarioCommand::Table {
+                    out,
+                    width,
+                    height,
+                    readme,
+                },
+        } => {
             let table = pegs::scenario::table::run(&out, width, height)?;
             println!("{table}");
             if let Some(path) = readme {
@@ -350,25 +423,64 @@ fn main() -> Result<()> {
                 println!("updated {}", path.display());
             }
         }
-        Command::Scenario { what: ScenarioCommand::Concealed { out, scenarios, width, height, readme } } => {
-            let names: Vec<String> = if scenarios.is_empty() { pegs::scenario::concealed::NAMES.iter().map(|s| s.to_string()).collect() } else { scenarios };
-            let (verdicts, table) = pegs::scenario::concealed_table::run(&out, &names, width, height, true)?;
+        Command::Scenario {
+            what:
+                ScenarioCommand::Concealed {
+                    out,
+                    scenarios,
+                    width,
+                    height,
+                    readme,
+                },
+        } => {
+            let names: Vec<String> = if scenarios.is_empty() {
+                pegs::scenario::concealed::NAMES
+                    .iter()
+                    .map(|s| s.to_string())
+                    .collect()
+            } else {
+                scenarios
+            };
+            let (verdicts, table) =
+                pegs::scenario::concealed_table::run(&out, &names, width, height, true)?;
             println!("{table}");
             if let Some(path) = readme {
-                pegs::scenario::table::write_between(&path, pegs::scenario::concealed_table::START, pegs::scenario::concealed_table::END, &table)?;
+                pegs::scenario::table::write_between(
+                    &path,
+                    pegs::scenario::concealed_table::START,
+                    pegs::scenario::concealed_table::END,
+                    &table,
+                )?;
                 println!("updated {}", path.display());
             }
-            let failed: Vec<&str> = verdicts.iter().filter(|v| !v.passed()).map(|v| v.scenario.as_str()).collect();
+            let failed: Vec<&str> = verdicts
+                .iter()
+                .filter(|v| !v.passed())
+                .map(|v| v.scenario.as_str())
+                .collect();
             if !failed.is_empty() {
                 anyhow::bail!("diagnosis wrong for: {}", failed.join(", "));
             }
         }
-        Command::Scenario { what: ScenarioCommand::List } => {
+        Command::Scenario {
+            what: ScenarioCommand::List,
+        } => {
             for n in pegs::scenario::all_names() {
                 println!("{n:<20} {}", pegs::scenario::description(n));
             }
         }
-        Command::Scenario { what: ScenarioCommand::Generate { name, out, width, height, seconds, offset, offset_yaw_deg } } => {
+        Command::Scenario {
+            what:
+                ScenarioCommand::Generate {
+                    name,
+                    out,
+                    width,
+                    height,
+                    seconds,
+                    offset,
+                    offset_yaw_deg,
+                },
+        } => {
             let opts = pegs::scenario::generate::GenerateOptions {
                 width,
                 height,
@@ -378,86 +490,234 @@ fn main() -> Result<()> {
                 ..Default::default()
             };
             pegs::scenario::generate::generate(&name, &out, &opts)?;
-            println!("wrote {0}/recording.mcap, {0}/ground_truth.csv and {0}/config.yaml", out.display());
+            println!(
+                "wrote {0}/recording.mcap, {0}/ground_truth.csv and {0}/config.yaml",
+                out.display()
+            );
         }
-        Command::Ablate { out, scenarios, base, seconds, resolutions, cameras, gains, learning_rates, iterations, readme } => {
-            let opts = pegs::ablation::SweepOptions { scenarios, base, seconds, resolutions, cameras, gains, learning_rates, iterations };
+        Command::Ablate {
+            out,
+            scenarios,
+            base,
+            seconds,
+            resolutions,
+            cameras,
+            gains,
+            learning_rates,
+            iterations,
+            readme,
+        } => {
+            let opts = pegs::ablation::SweepOptions {
+                scenarios,
+                base,
+                seconds,
+                resolutions,
+                cameras,
+                gains,
+                learning_rates,
+                iterations,
+            };
             let rows = pegs::ablation::run(&opts, &out)?;
             let table = pegs::ablation::summary_table(&rows);
             println!("{table}");
             println!("plots and runs in {}", out.display());
             if let Some(path) = readme {
-                pegs::scenario::table::write_between(&path, pegs::ablation::START, pegs::ablation::END, &table)?;
+                pegs::scenario::table::write_between(
+                    &path,
+                    pegs::ablation::START,
+                    pegs::ablation::END,
+                    &table,
+                )?;
                 println!("updated {}", path.display());
             }
         }
-        Command::Node { config, model, duration, stats, ros_args } => {
+        Command::Node {
+            config,
+            model,
+            duration,
+            stats,
+            ros_args,
+        } => {
             let base = load_with_model(config.as_deref(), model.as_deref())?;
             let launch = pegs::ros::params::parse_ros_args(&ros_args)?;
             let config = pegs::ros::params::launch_config(base, &launch)?;
-            let s = pegs::ros::node::run(config, &launch, pegs::ros::node::RunOptions { duration, stats })?;
+            let s = pegs::ros::node::run(
+                config,
+                &launch,
+                pegs::ros::node::RunOptions { duration, stats },
+            )?;
             println!("{}", serde_json::to_string_pretty(&s)?);
         }
-        Command::Replay { recording, config, out, no_visual_forces, no_physics, compare, cameras, readme, model } => {
+        Command::Replay {
+            recording,
+            config,
+            out,
+            no_visual_forces,
+            no_physics,
+            compare,
+            cameras,
+            readme,
+            model,
+        } => {
             let config = load_with_model(Some(&config), model.as_deref())?;
-            let opts = pegs::replay::ReplayOptions { visual_forces: !no_visual_forces, physics: !no_physics, max_cameras: cameras, ..Default::default() };
-            let m = if compare { pegs::replay::run_compare(&recording, &config, &out, true)? } else { pegs::replay::run(&recording, &config, &out, opts)? };
-            println!("replayed {} ticks ({:.1} s) from cameras {:?} [{}], {:.1} ms per tick", m.ticks, m.seconds, m.cameras, m.mode, m.wall_ms_per_tick);
+            let opts = pegs::replay::ReplayOptions {
+                visual_forces: !no_visual_forces,
+                physics: !no_physics,
+                max_cameras: cameras,
+                ..Default::default()
+            };
+            let m = if compare {
+                pegs::replay::run_compare(&recording, &config, &out, true)?
+            } else {
+                pegs::replay::run(&recording, &config, &out, opts)?
+            };
+            println!(
+                "replayed {} ticks ({:.1} s) from cameras {:?} [{}], {:.1} ms per tick",
+                m.ticks, m.seconds, m.cameras, m.mode, m.wall_ms_per_tick
+            );
             for (object, e) in &m.tracking_error {
-                println!("  {object}: tracking error mean {:.2} mm, p95 {:.2} mm, final {:.2} mm", e.mean_mm, e.p95_mm, e.final_mm);
+                println!(
+                    "  {object}: tracking error mean {:.2} mm, p95 {:.2} mm, final {:.2} mm",
+                    e.mean_mm, e.p95_mm, e.final_mm
+                );
             }
             for (object, cams) in &m.silhouette_iou {
                 for (camera, s) in cams {
-                    println!("  {object} in {camera}: silhouette IoU mean {:.3}, p5 {:.3}; visible part {:.3}, p5 {:.3}; over {} frames", s.mean, s.p5, s.visible_mean, s.visible_p5, s.frames);
+                    println!(
+                        "  {object} in {camera}: silhouette IoU mean {:.3}, p5 {:.3}; visible part {:.3}, p5 {:.3}; over {} frames",
+                        s.mean, s.p5, s.visible_mean, s.visible_p5, s.frames
+                    );
                 }
             }
             for (object, c) in &m.comparison {
                 println!(
                     "  {object}: physics only {:.2} mm, visual forces only {:.2} mm (ratios {:.2} / {:.2})",
-                    c.physics_only_mean_mm, c.visual_forces_only_mean_mm, c.ratio_to_physics_only, c.ratio_to_visual_forces_only
+                    c.physics_only_mean_mm,
+                    c.visual_forces_only_mean_mm,
+                    c.ratio_to_physics_only,
+                    c.ratio_to_visual_forces_only
                 );
             }
             if m.rejected_images + m.rejected_joint_states > 0 {
-                println!("  rejected {} images and {} joint states (see metrics.json warnings)", m.rejected_images, m.rejected_joint_states);
+                println!(
+                    "  rejected {} images and {} joint states (see metrics.json warnings)",
+                    m.rejected_images, m.rejected_joint_states
+                );
             }
             println!("wrote {0}/objects.csv and {0}/metrics.json", out.display());
             if let Some(path) = readme {
                 use pegs::replay::silhouette;
-                pegs::scenario::table::write_between(&path, silhouette::TABLE_START, silhouette::TABLE_END, &silhouette::iou_table(&m))?;
+                pegs::scenario::table::write_between(
+                    &path,
+                    silhouette::TABLE_START,
+                    silhouette::TABLE_END,
+                    &silhouette::iou_table(&m),
+                )?;
                 println!("updated {}", path.display());
             }
         }
-        Command::Diagnose { recording, config, out, model } => {
+        Command::Diagnose {
+            recording,
+            config,
+            out,
+            model,
+        } => {
             let config = load_with_model(Some(&config), model.as_deref())?;
-            let report = pegs::diagnose::diagnose(&recording, &config, &out, pegs::diagnose::DiagnoseOptions::default())?;
+            let report = pegs::diagnose::diagnose(
+                &recording,
+                &config,
+                &out,
+                pegs::diagnose::DiagnoseOptions::default(),
+            )?;
             for o in &report.objects {
-                let driven: Vec<String> = o.unexplained.iter().filter(|m| m.sped_up).map(|m| format!("{:.1}-{:.1} s", m.t_start, m.t_end)).collect();
+                let driven: Vec<String> = o
+                    .unexplained
+                    .iter()
+                    .filter(|m| m.sped_up)
+                    .map(|m| format!("{:.1}-{:.1} s", m.t_start, m.t_end))
+                    .collect();
                 if !driven.is_empty() {
-                    println!("{}: moved by something outside the model (sped up, no modelled contact, unexplained) at {}", o.object, driven.join(", "));
+                    println!(
+                        "{}: moved by something outside the model (sped up, no modelled contact, unexplained) at {}",
+                        o.object,
+                        driven.join(", ")
+                    );
                 }
                 if o.effect == "none" {
-                    println!("{}: no significant missing physics in the effect library", o.object);
+                    println!(
+                        "{}: no significant missing physics in the effect library",
+                        o.object
+                    );
                     continue;
                 }
-                let params: Vec<String> = o.parameters.iter().map(|p| format!("{} {:.4} {}", p.name, p.value, p.unit)).collect();
-                println!("{}: {} ({}); held-out 1 s prediction error {:.1} -> {:.1} mm", o.object, o.effect, params.join(", "), o.before.open_loop_error_mm, o.after.open_loop_error_mm);
+                let params: Vec<String> = o
+                    .parameters
+                    .iter()
+                    .map(|p| format!("{} {:.4} {}", p.name, p.value, p.unit))
+                    .collect();
+                println!(
+                    "{}: {} ({}); held-out 1 s prediction error {:.1} -> {:.1} mm",
+                    o.object,
+                    o.effect,
+                    params.join(", "),
+                    o.before.open_loop_error_mm,
+                    o.after.open_loop_error_mm
+                );
             }
-            println!("wrote {0}/report.md, {0}/report.json and {0}/model.yaml", out.display());
+            println!(
+                "wrote {0}/report.md, {0}/report.json and {0}/model.yaml",
+                out.display()
+            );
         }
-        Command::Import { what: ImportFormat::EmbodiedGaussians { dir, out, config_out, start, duration, max_rate } } => {
-            let opts = pegs::import::embodied_gaussians::ImportOptions { start, duration, max_rate, progress: true };
+        Command::Import {
+            what:
+                ImportFormat::EmbodiedGaussians {
+                    dir,
+                    out,
+                    config_out,
+                    start,
+                    duration,
+                    max_rate,
+                },
+        } => {
+            let opts = pegs::import::embodied_gaussians::ImportOptions {
+                start,
+                duration,
+                max_rate,
+                progress: true,
+            };
             let report = pegs::import::embodied_gaussians::import(&dir, &out, &config_out, &opts)?;
             for w in &report.warnings {
                 eprintln!("warning: {w}");
             }
-            println!("imported {:.2} s to {:.2} s: {:?} frames; wrote {} and {}", report.first_stamp, report.last_stamp, report.frames_per_camera, out.display(), config_out.display());
+            println!(
+                "imported {:.2} s to {:.2} s: {:?} frames; wrote {} and {}",
+                report.first_stamp,
+                report.last_stamp,
+                report.frames_per_camera,
+                out.display(),
+                config_out.display()
+            );
         }
-        Command::Bench { what: BenchTarget::Tick { json, ticks, backend } } => {
+        Command::Bench {
+            what:
+                BenchTarget::Tick {
+                    json,
+                    ticks,
+                    backend,
+                },
+        } => {
             use pegs::render::Backend;
             let backends: Vec<Backend> = if backend.is_empty() {
                 vec![Backend::Cpu, Backend::Wgpu]
             } else {
-                backend.iter().map(|b| match b { BackendArg::Cpu => Backend::Cpu, BackendArg::Wgpu => Backend::Wgpu }).collect()
+                backend
+                    .iter()
+                    .map(|b| match b {
+                        BackendArg::Cpu => Backend::Cpu,
+                        BackendArg::Wgpu => Backend::Wgpu,
+                    })
+                    .collect()
             };
             let report = pegs::bench::tick(ticks.max(1), &backends, &[(320, 180), (640, 360)])?;
             if json {
@@ -466,7 +726,14 @@ fn main() -> Result<()> {
                 for r in &report.runs {
                     println!(
                         "{:<5} {} x {}x{}: predict {:7.2} ms + correct {:8.2} ms = {:8.2} ms per tick ({:.1} ticks/s)",
-                        r.backend, r.cameras, r.resolution[0], r.resolution[1], r.predict_ms, r.correct_ms, r.tick_ms, r.ticks_per_second
+                        r.backend,
+                        r.cameras,
+                        r.resolution[0],
+                        r.resolution[1],
+                        r.predict_ms,
+                        r.correct_ms,
+                        r.tick_ms,
+                        r.ticks_per_second
                     );
                 }
                 for s in &report.skipped {

@@ -18,14 +18,23 @@ impl Default for Pose {
 }
 
 impl Pose {
-    pub const IDENTITY: Pose = Pose { translation: Vec3::ZERO, rotation: Quat::IDENTITY };
+    pub const IDENTITY: Pose = Pose {
+        translation: Vec3::ZERO,
+        rotation: Quat::IDENTITY,
+    };
 
     pub fn new(translation: Vec3, rotation: Quat) -> Self {
-        Self { translation, rotation }
+        Self {
+            translation,
+            rotation,
+        }
     }
 
     pub fn from_translation(translation: Vec3) -> Self {
-        Self { translation, rotation: Quat::IDENTITY }
+        Self {
+            translation,
+            rotation: Quat::IDENTITY,
+        }
     }
 
     pub fn transform_point(&self, p: Vec3) -> Vec3 {
@@ -34,7 +43,10 @@ impl Pose {
 
     pub fn inverse(&self) -> Pose {
         let r = self.rotation.inverse();
-        Pose { translation: -(r * self.translation), rotation: r }
+        Pose {
+            translation: -(r * self.translation),
+            rotation: r,
+        }
     }
 
     /// `self * other`: apply `other` first, then `self`.
@@ -62,7 +74,8 @@ impl Pose {
 pub fn extract_rotation(a: &Mat3, guess: Quat, max_iterations: usize) -> Quat {
     // The iteration only depends on the direction of `a`; normalising keeps f32 well scaled for tiny
     // shapes (moment matrices of a few-centimetre object are ~1e-6).
-    let norm = (a.x_axis.length_squared() + a.y_axis.length_squared() + a.z_axis.length_squared()).sqrt();
+    let norm =
+        (a.x_axis.length_squared() + a.y_axis.length_squared() + a.z_axis.length_squared()).sqrt();
     if !norm.is_finite() || norm < 1e-30 {
         return guess;
     }
@@ -98,7 +111,10 @@ mod tests {
 
     #[test]
     fn pose_inverse_and_composition_round_trip() {
-        let p = Pose::new(Vec3::new(0.3, -0.2, 1.0), Quat::from_euler(glam::EulerRot::XYZ, 0.3, -1.1, 2.0));
+        let p = Pose::new(
+            Vec3::new(0.3, -0.2, 1.0),
+            Quat::from_euler(glam::EulerRot::XYZ, 0.3, -1.1, 2.0),
+        );
         let q = p.inverse();
         let x = Vec3::new(0.1, 0.5, -0.7);
         assert!((q.transform_point(p.transform_point(x)) - x).length() < 1e-5);
@@ -114,7 +130,11 @@ mod tests {
         let m = a.interpolate(&b, 0.5);
         assert!((m.translation - Vec3::new(1.0, 0.0, 0.0)).length() < 1e-6);
         assert!(approx_quat(m.rotation, Quat::from_rotation_z(0.5), 1e-4));
-        assert!(approx_quat(a.interpolate(&b, 1.0).rotation, b.rotation, 1e-4));
+        assert!(approx_quat(
+            a.interpolate(&b, 1.0).rotation,
+            b.rotation,
+            1e-4
+        ));
     }
 
     #[test]

@@ -14,7 +14,10 @@ pub struct Time {
 impl Time {
     pub fn from_seconds(t: f64) -> Self {
         let sec = t.floor();
-        Self { sec: sec as i32, nanosec: ((t - sec) * 1e9).round().min(999_999_999.0) as u32 }
+        Self {
+            sec: sec as i32,
+            nanosec: ((t - sec) * 1e9).round().min(999_999_999.0) as u32,
+        }
     }
 
     pub fn seconds(&self) -> f64 {
@@ -225,14 +228,25 @@ pub struct DiagnosticArray {
 macro_rules! ros_messages {
     ($($t:ty),*) => { $(impl ros2_client::Message for $t {})* };
 }
-ros_messages!(Image, CameraInfo, JointState, TfMessage, PoseArray, TrackedObjectArray, PointCloud2, CompressedImage, DiagnosticArray);
+ros_messages!(
+    Image,
+    CameraInfo,
+    JointState,
+    TfMessage,
+    PoseArray,
+    TrackedObjectArray,
+    PointCloud2,
+    CompressedImage,
+    DiagnosticArray
+);
 
 /// Encapsulation header of little-endian plain CDR, as ROS 2 writes it.
 const CDR_LE: [u8; 4] = [0, 1, 0, 0];
 
 /// Serialise as a ROS 2 CDR payload (encapsulation header + little-endian body).
 pub fn to_cdr<T: Serialize>(msg: &T) -> Result<Vec<u8>> {
-    let body = cdr_encoding::to_vec::<T, byteorder::LittleEndian>(msg).map_err(|e| anyhow::anyhow!("CDR encoding failed: {e}"))?;
+    let body = cdr_encoding::to_vec::<T, byteorder::LittleEndian>(msg)
+        .map_err(|e| anyhow::anyhow!("CDR encoding failed: {e}"))?;
     let mut out = Vec::with_capacity(body.len() + 4);
     out.extend_from_slice(&CDR_LE);
     out.extend_from_slice(&body);
@@ -241,25 +255,34 @@ pub fn to_cdr<T: Serialize>(msg: &T) -> Result<Vec<u8>> {
 
 /// Parse a ROS 2 CDR payload (little- or big-endian encapsulation).
 pub fn from_cdr<T: for<'de> Deserialize<'de>>(bytes: &[u8]) -> Result<T> {
-    anyhow::ensure!(bytes.len() >= 4, "CDR payload of {} bytes has no encapsulation header", bytes.len());
+    anyhow::ensure!(
+        bytes.len() >= 4,
+        "CDR payload of {} bytes has no encapsulation header",
+        bytes.len()
+    );
     let body = &bytes[4..];
     let value = match bytes[1] {
         1 => cdr_encoding::from_bytes::<T, byteorder::LittleEndian>(body),
         0 => cdr_encoding::from_bytes::<T, byteorder::BigEndian>(body),
         other => anyhow::bail!("unsupported CDR encapsulation kind {other}"),
     };
-    value.map(|(v, _)| v).map_err(|e| anyhow::anyhow!("malformed CDR message: {e}")).context("decoding a recorded message")
+    value
+        .map(|(v, _)| v)
+        .map_err(|e| anyhow::anyhow!("malformed CDR message: {e}"))
+        .context("decoding a recorded message")
 }
 
 /// ROS 2 type names and `ros2msg` schema texts (dependencies appended in the rosbag2 layout).
 pub mod schema {
     const TIME: &str = "int32 sec\nuint32 nanosec\n";
     const HEADER: &str = "builtin_interfaces/Time stamp\nstring frame_id\n";
-    const ROI: &str = "uint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify\n";
+    const ROI: &str =
+        "uint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify\n";
     const VECTOR3: &str = "float64 x\nfloat64 y\nfloat64 z\n";
     const QUATERNION: &str = "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n";
     const TRANSFORM: &str = "Vector3 translation\nQuaternion rotation\n";
-    const TRANSFORM_STAMPED: &str = "std_msgs/Header header\nstring child_frame_id\nTransform transform\n";
+    const TRANSFORM_STAMPED: &str =
+        "std_msgs/Header header\nstring child_frame_id\nTransform transform\n";
 
     fn with_deps(main: &str, deps: &[(&str, &str)]) -> String {
         let mut s = main.to_string();
@@ -272,17 +295,45 @@ pub mod schema {
 
     pub fn image() -> (&'static str, String) {
         let main = "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\nuint32 step\nuint8[] data\n";
-        ("sensor_msgs/msg/Image", with_deps(main, &[("std_msgs/Header", HEADER), ("builtin_interfaces/Time", TIME)]))
+        (
+            "sensor_msgs/msg/Image",
+            with_deps(
+                main,
+                &[
+                    ("std_msgs/Header", HEADER),
+                    ("builtin_interfaces/Time", TIME),
+                ],
+            ),
+        )
     }
 
     pub fn camera_info() -> (&'static str, String) {
         let main = "std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\nfloat64[] d\nfloat64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\nuint32 binning_y\nRegionOfInterest roi\n";
-        ("sensor_msgs/msg/CameraInfo", with_deps(main, &[("std_msgs/Header", HEADER), ("builtin_interfaces/Time", TIME), ("sensor_msgs/RegionOfInterest", ROI)]))
+        (
+            "sensor_msgs/msg/CameraInfo",
+            with_deps(
+                main,
+                &[
+                    ("std_msgs/Header", HEADER),
+                    ("builtin_interfaces/Time", TIME),
+                    ("sensor_msgs/RegionOfInterest", ROI),
+                ],
+            ),
+        )
     }
 
     pub fn joint_state() -> (&'static str, String) {
         let main = "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n";
-        ("sensor_msgs/msg/JointState", with_deps(main, &[("std_msgs/Header", HEADER), ("builtin_interfaces/Time", TIME)]))
+        (
+            "sensor_msgs/msg/JointState",
+            with_deps(
+                main,
+                &[
+                    ("std_msgs/Header", HEADER),
+                    ("builtin_interfaces/Time", TIME),
+                ],
+            ),
+        )
     }
 
     pub fn tf_message() -> (&'static str, String) {
@@ -310,27 +361,68 @@ mod tests {
 
     #[test]
     fn messages_round_trip_through_cdr() {
-        let img = Image { header: Header { stamp: Time::from_seconds(12.25), frame_id: "cam0_optical".into() }, height: 2, width: 2, encoding: "rgb8".into(), is_bigendian: 0, step: 6, data: (0..12).collect() };
+        let img = Image {
+            header: Header {
+                stamp: Time::from_seconds(12.25),
+                frame_id: "cam0_optical".into(),
+            },
+            height: 2,
+            width: 2,
+            encoding: "rgb8".into(),
+            is_bigendian: 0,
+            step: 6,
+            data: (0..12).collect(),
+        };
         let back: Image = from_cdr(&to_cdr(&img).unwrap()).unwrap();
         assert_eq!(back, img);
-        let info = CameraInfo { k: [1.0, 0.0, 2.0, 0.0, 3.0, 4.0, 0.0, 0.0, 1.0], p: [7.0; 12], d: vec![0.1, 0.2], ..Default::default() };
-        assert_eq!(from_cdr::<CameraInfo>(&to_cdr(&info).unwrap()).unwrap(), info);
-        let js = JointState { name: vec!["a".into(), "b".into()], position: vec![0.5, f64::NAN], ..Default::default() };
+        let info = CameraInfo {
+            k: [1.0, 0.0, 2.0, 0.0, 3.0, 4.0, 0.0, 0.0, 1.0],
+            p: [7.0; 12],
+            d: vec![0.1, 0.2],
+            ..Default::default()
+        };
+        assert_eq!(
+            from_cdr::<CameraInfo>(&to_cdr(&info).unwrap()).unwrap(),
+            info
+        );
+        let js = JointState {
+            name: vec!["a".into(), "b".into()],
+            position: vec![0.5, f64::NAN],
+            ..Default::default()
+        };
         let back: JointState = from_cdr(&to_cdr(&js).unwrap()).unwrap();
         assert_eq!(back.name, js.name);
         assert!(back.position[1].is_nan());
-        assert!(from_cdr::<Image>(&[0, 1, 0, 0, 5]).is_err(), "truncated payload is an error");
+        assert!(
+            from_cdr::<Image>(&[0, 1, 0, 0, 5]).is_err(),
+            "truncated payload is an error"
+        );
         assert!(from_cdr::<Image>(&[0, 1]).is_err());
     }
 
     #[test]
     fn small_image_bytes_match_the_reference_layout() {
         // Stamp 1 s + 2 ns, frame "f", 1x1 rgb8: the fixed part of the CDR layout, byte by byte.
-        let img = Image { header: Header { stamp: Time { sec: 1, nanosec: 2 }, frame_id: "f".into() }, height: 1, width: 1, encoding: "rgb8".into(), is_bigendian: 0, step: 3, data: vec![9, 8, 7] };
+        let img = Image {
+            header: Header {
+                stamp: Time { sec: 1, nanosec: 2 },
+                frame_id: "f".into(),
+            },
+            height: 1,
+            width: 1,
+            encoding: "rgb8".into(),
+            is_bigendian: 0,
+            step: 3,
+            data: vec![9, 8, 7],
+        };
         let b = to_cdr(&img).unwrap();
         assert_eq!(&b[..4], &[0, 1, 0, 0]);
         assert_eq!(&b[4..12], &[1, 0, 0, 0, 2, 0, 0, 0], "stamp sec, nanosec");
-        assert_eq!(&b[12..18], &[2, 0, 0, 0, b'f', 0], "frame_id with its length and NUL");
+        assert_eq!(
+            &b[12..18],
+            &[2, 0, 0, 0, b'f', 0],
+            "frame_id with its length and NUL"
+        );
         assert_eq!(&b[b.len() - 3..], &[9, 8, 7]);
     }
 }

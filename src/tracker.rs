@@ -18,15 +18,30 @@ pub struct Tracker {
 impl Tracker {
     pub fn new(scene: Scene, config: &Config, visual_forces: bool) -> Result<Self> {
         let solver = Solver::new(config.physics.clone(), &scene.world)?;
-        let corrector = if visual_forces && config.correct.enabled { Some(Corrector::new(config.correct.clone(), config.render.clone())?) } else { None };
-        Ok(Self { scene, solver, corrector })
+        let corrector = if visual_forces && config.correct.enabled {
+            Some(Corrector::new(
+                config.correct.clone(),
+                config.render.clone(),
+            )?)
+        } else {
+            None
+        };
+        Ok(Self {
+            scene,
+            solver,
+            corrector,
+        })
     }
 
     /// Predict one tick, then correct against `views` (images taken at the end of the tick).
     pub fn tick(&mut self, views: &[View]) -> Result<Option<CorrectStats>> {
         self.scene.advance(&mut self.solver)?;
         match &mut self.corrector {
-            Some(c) => Ok(Some(c.correct(&mut self.scene.world, views, self.solver.config().dt)?)),
+            Some(c) => Ok(Some(c.correct(
+                &mut self.scene.world,
+                views,
+                self.solver.config().dt,
+            )?)),
             None => Ok(None),
         }
     }

@@ -10,7 +10,8 @@ pub const HEADER: &str = "t,object,x,y,z,qx,qy,qz,qw";
 
 /// A buffered CSV file that starts with `header`.
 fn create_csv(path: &Path, header: &str) -> Result<std::io::BufWriter<std::fs::File>> {
-    let file = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
     let mut out = std::io::BufWriter::new(file);
     writeln!(out, "{header}")?;
     Ok(out)
@@ -22,7 +23,9 @@ pub struct TrajectoryWriter {
 
 impl TrajectoryWriter {
     pub fn create(path: &Path) -> Result<Self> {
-        Ok(Self { out: create_csv(path, HEADER)? })
+        Ok(Self {
+            out: create_csv(path, HEADER)?,
+        })
     }
 
     /// Append the pose of every dynamic object at the world's current time.
@@ -54,15 +57,25 @@ pub struct ParticleWriter {
 
 impl ParticleWriter {
     pub fn create(path: &Path) -> Result<Self> {
-        Ok(Self { out: create_csv(path, PARTICLE_HEADER)? })
+        Ok(Self {
+            out: create_csv(path, PARTICLE_HEADER)?,
+        })
     }
 
     /// Append every rope particle at the world's current time.
     pub fn record(&mut self, world: &World) -> Result<()> {
-        for s in world.shapes.dynamic_ids().filter(|&s| world.shapes.kind[s as usize] == crate::world::ShapeKind::Rope) {
+        for s in world
+            .shapes
+            .dynamic_ids()
+            .filter(|&s| world.shapes.kind[s as usize] == crate::world::ShapeKind::Rope)
+        {
             for (k, i) in world.shapes.range(s).enumerate() {
                 let p = world.particles.position[i];
-                writeln!(self.out, "{:.6},{},{k},{:.6},{:.6},{:.6}", world.time, world.shapes.name[s as usize], p.x, p.y, p.z)?;
+                writeln!(
+                    self.out,
+                    "{:.6},{},{k},{:.6},{:.6},{:.6}",
+                    world.time, world.shapes.name[s as usize], p.x, p.y, p.z
+                )?;
             }
         }
         Ok(())

@@ -15,15 +15,33 @@ fn temp_dir(name: &str) -> std::path::PathBuf {
 
 fn run_demo(out: &Path) -> String {
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/pegs.yaml");
-    let o = pegs().args(["demo", "--seconds", "4", "--story", "none", "--config"]).arg(&config).arg("--out").arg(out).output().unwrap();
-    assert!(o.status.success(), "demo failed: {}", String::from_utf8_lossy(&o.stderr));
+    let o = pegs()
+        .args(["demo", "--seconds", "4", "--story", "none", "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "demo failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     std::fs::read_to_string(out.join("trajectory.csv")).unwrap()
 }
 
 /// Last row of `object` as (x, y, z).
 fn last_position(csv: &str, object: &str) -> [f64; 3] {
-    let row = csv.lines().rfind(|l| l.split(',').nth(1) == Some(object)).expect("object rows");
-    let f: Vec<f64> = row.split(',').skip(2).take(3).map(|v| v.parse().unwrap()).collect();
+    let row = csv
+        .lines()
+        .rfind(|l| l.split(',').nth(1) == Some(object))
+        .expect("object rows");
+    let f: Vec<f64> = row
+        .split(',')
+        .skip(2)
+        .take(3)
+        .map(|v| v.parse().unwrap())
+        .collect();
     [f[0], f[1], f[2]]
 }
 
@@ -46,7 +64,8 @@ fn demo_writes_a_deterministic_physical_trajectory() {
     assert!((bx[2] - 0.03).abs() < 1e-3, "box height {}", bx[2]);
     let t = last_position(&csv, "tblock");
     assert!(t[1] > 0.05, "T-block was not pushed: {t:?}");
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(a.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(a.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["objects"].as_array().unwrap().len(), 3);
     // Same recording, same config: identical output.
     assert_eq!(csv, run_demo(&b), "demo output is not deterministic");
@@ -54,7 +73,22 @@ fn demo_writes_a_deterministic_physical_trajectory() {
 
 #[test]
 fn bench_physics_prints_json_with_the_documented_scenes() {
-    let o = pegs().args(["bench", "physics", "--json", "--ticks", "2", "--warmup", "0", "--scene", "tblock_robot", "--scene", "cube_field_1k"]).output().unwrap();
+    let o = pegs()
+        .args([
+            "bench",
+            "physics",
+            "--json",
+            "--ticks",
+            "2",
+            "--warmup",
+            "0",
+            "--scene",
+            "tblock_robot",
+            "--scene",
+            "cube_field_1k",
+        ])
+        .output()
+        .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("stdout is JSON");
     assert_eq!(v["substeps"], 20);
@@ -64,10 +98,19 @@ fn bench_physics_prints_json_with_the_documented_scenes() {
     for s in scenes {
         assert!(s["ms_per_tick_median"].as_f64().unwrap() > 0.0);
     }
-    let robot = scenes.iter().find(|s| s["scene"] == "tblock_robot").unwrap();
+    let robot = scenes
+        .iter()
+        .find(|s| s["scene"] == "tblock_robot")
+        .unwrap();
     let dynamic = robot["dynamic_particles"].as_u64().unwrap();
-    assert!((400..=700).contains(&dynamic), "T-block of about 500 particles, got {dynamic}");
-    assert!(robot["kinematic_particles"].as_u64().unwrap() > 2000, "a few thousand robot particles");
+    assert!(
+        (400..=700).contains(&dynamic),
+        "T-block of about 500 particles, got {dynamic}"
+    );
+    assert!(
+        robot["kinematic_particles"].as_u64().unwrap() > 2000,
+        "a few thousand robot particles"
+    );
 }
 
 #[test]
@@ -76,9 +119,18 @@ fn a_bad_config_is_a_clear_error_not_a_panic() {
     std::fs::create_dir_all(&dir).unwrap();
     let cfg = dir.join("bad.yaml");
     std::fs::write(&cfg, "physics:\n  substeps: 0\n").unwrap();
-    let o = pegs().args(["demo", "--config"]).arg(&cfg).arg("--out").arg(dir.join("out")).output().unwrap();
+    let o = pegs()
+        .args(["demo", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(dir.join("out"))
+        .output()
+        .unwrap();
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("substeps") && err.contains("bad.yaml"), "unhelpful error: {err}");
+    assert!(
+        err.contains("substeps") && err.contains("bad.yaml"),
+        "unhelpful error: {err}"
+    );
     assert!(!err.contains("panicked"), "{err}");
 }

@@ -14,21 +14,53 @@ fn concealed_physics_is_located_named_modelled_and_the_fit_improves() {
     let _ = std::fs::remove_dir_all(&out);
     let o = Command::new(env!("CARGO_BIN_EXE_pegs"))
         // Every concealed scenario but the drag, which is the demo's story (below).
-        .args(["scenario", "concealed", "--out", out.to_str().unwrap(), "--width", "160", "--height", "90", "--scenarios", SCENARIOS])
+        .args([
+            "scenario",
+            "concealed",
+            "--out",
+            out.to_str().unwrap(),
+            "--width",
+            "160",
+            "--height",
+            "90",
+            "--scenarios",
+            SCENARIOS,
+        ])
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&o.stdout);
     println!("{stdout}");
-    assert!(o.status.success(), "{}\n{}", stdout, String::from_utf8_lossy(&o.stderr));
-    let verdicts: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("verdicts.json")).unwrap()).unwrap();
-    assert_eq!(verdicts.as_array().unwrap().len(), SCENARIOS.split(',').count());
+    assert!(
+        o.status.success(),
+        "{}\n{}",
+        stdout,
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let verdicts: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("verdicts.json")).unwrap()).unwrap();
+    assert_eq!(
+        verdicts.as_array().unwrap().len(),
+        SCENARIOS.split(',').count()
+    );
     for v in verdicts.as_array().unwrap() {
         let name = v["scenario"].as_str().unwrap();
         assert_eq!(v["named"], v["truth"], "{name}");
         let dir = out.join(name).join("diagnosis");
-        let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
-        for field in ["mismatch", "effect", "parameters", "explained_fraction", "before", "after"] {
-            assert!(report.get(field).is_some(), "{name}: report.json lacks {field}");
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap())
+                .unwrap();
+        for field in [
+            "mismatch",
+            "effect",
+            "parameters",
+            "explained_fraction",
+            "before",
+            "after",
+        ] {
+            assert!(
+                report.get(field).is_some(),
+                "{name}: report.json lacks {field}"
+            );
         }
         for plot in ["box_residual.png", "box_feature.png", "box_paths.png"] {
             let img = image::open(dir.join(plot)).unwrap();
@@ -36,19 +68,39 @@ fn concealed_physics_is_located_named_modelled_and_the_fit_improves() {
         }
         let model = pegs::config::ModelFile::load(&dir.join("model.yaml")).unwrap();
         if name == "concealed_control" {
-            assert!(model.effects.is_empty() && report["mismatch"].as_array().unwrap().is_empty(), "{name}: {report}");
+            assert!(
+                model.effects.is_empty() && report["mismatch"].as_array().unwrap().is_empty(),
+                "{name}: {report}"
+            );
         } else {
             assert_eq!(model.effects.len(), 1, "{name}");
             // The augmented model corrects less on the held-out part than the current one.
-            let (b, a) = (report["before"]["open_loop_error_mm"].as_f64().unwrap(), report["after"]["open_loop_error_mm"].as_f64().unwrap());
+            let (b, a) = (
+                report["before"]["open_loop_error_mm"].as_f64().unwrap(),
+                report["after"]["open_loop_error_mm"].as_f64().unwrap(),
+            );
             assert!(a <= 0.5 * b, "{name}: {b} -> {a}");
         }
         if name == "concealed_heavy" {
             // The struck boxes have no effect of their own; their mismatches are the heavy box's.
-            let others: Vec<&serde_json::Value> = report["objects"].as_array().unwrap().iter().filter(|o| o["object"] != "box").collect();
+            let others: Vec<&serde_json::Value> = report["objects"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|o| o["object"] != "box")
+                .collect();
             assert_eq!(others.len(), 2, "{name}");
-            assert!(others.iter().all(|o| o["effect"] == "none"), "{name}: {report}");
-            assert!(others.iter().any(|o| o["explained_by"].as_str().is_some_and(|e| e.contains("mass_error of box")) && !o["mismatch"].as_array().unwrap().is_empty()), "{name}: {report}");
+            assert!(
+                others.iter().all(|o| o["effect"] == "none"),
+                "{name}: {report}"
+            );
+            assert!(
+                others.iter().any(|o| o["explained_by"]
+                    .as_str()
+                    .is_some_and(|e| e.contains("mass_error of box"))
+                    && !o["mismatch"].as_array().unwrap().is_empty()),
+                "{name}: {report}"
+            );
         }
     }
 }
@@ -60,14 +112,49 @@ fn the_demo_finds_the_concealed_drag() {
     let out = std::env::temp_dir().join(format!("pegs-demo-story-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
     let config = concat!(env!("CARGO_MANIFEST_DIR"), "/config/pegs.yaml");
-    let o = Command::new(env!("CARGO_BIN_EXE_pegs")).args(["demo", "--seconds", "0.5", "--config", config, "--out", out.to_str().unwrap()]).output().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_pegs"))
+        .args([
+            "demo",
+            "--seconds",
+            "0.5",
+            "--config",
+            config,
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
     let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{}\n{}", stdout, String::from_utf8_lossy(&o.stderr));
-    let verdicts: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("story").join("verdicts.json")).unwrap()).unwrap();
+    assert!(
+        o.status.success(),
+        "{}\n{}",
+        stdout,
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let verdicts: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("story").join("verdicts.json")).unwrap(),
+    )
+    .unwrap();
     let v = &verdicts[0];
-    assert_eq!((v["scenario"].as_str(), v["named"].as_str()), (Some("concealed_drag"), Some("viscous_drag")), "{v}");
-    assert!(v["relative_error"].as_f64().unwrap() <= 0.25 && v["halved"] == true && v["located"] == true, "{v}");
+    assert_eq!(
+        (v["scenario"].as_str(), v["named"].as_str()),
+        (Some("concealed_drag"), Some("viscous_drag")),
+        "{v}"
+    );
+    assert!(
+        v["relative_error"].as_f64().unwrap() <= 0.25
+            && v["halved"] == true
+            && v["located"] == true,
+        "{v}"
+    );
     let story = std::fs::read_to_string(out.join("story.md")).unwrap();
-    assert!(story.contains("viscous_drag") && story.contains("passed"), "{story}");
-    assert!(out.join("story/concealed_drag/diagnosis/model.yaml").exists() && out.join("trajectory.csv").exists());
+    assert!(
+        story.contains("viscous_drag") && story.contains("passed"),
+        "{story}"
+    );
+    assert!(
+        out.join("story/concealed_drag/diagnosis/model.yaml")
+            .exists()
+            && out.join("trajectory.csv").exists()
+    );
 }

@@ -17,7 +17,9 @@ struct Solid {
 impl Solid {
     fn contains(&self, world: Vec3) -> bool {
         let b = self.pose.inverse().transform_point(world);
-        self.centres.iter().any(|c| (b - *c).abs().max_element() <= self.half)
+        self.centres
+            .iter()
+            .any(|c| (b - *c).abs().max_element() <= self.half)
     }
 
     /// Points on the solid's surface: a 3 x 3 pattern on every cube face that no other cube covers.
@@ -34,7 +36,10 @@ impl Solid {
                     let (u, v) = (Vec3::AXES[(axis + 1) % 3], Vec3::AXES[(axis + 2) % 3]);
                     for i in [-0.66f32, 0.0, 0.66] {
                         for j in [-0.66f32, 0.0, 0.66] {
-                            out.push(self.pose.transform_point(*c + (n + u * i + v * j) * self.half));
+                            out.push(
+                                self.pose
+                                    .transform_point(*c + (n + u * i + v * j) * self.half),
+                            );
                         }
                     }
                 }
@@ -60,10 +65,18 @@ fn surface_points_off(a: &Solid, b: &Solid, radius: f32) -> usize {
     a.surface()
         .iter()
         .filter(|p| {
-            let probes = std::iter::once(**p).chain(directions.iter().flat_map(|d| [**p + *d * radius, **p + *d * radius * 0.5]));
+            let probes = std::iter::once(**p).chain(
+                directions
+                    .iter()
+                    .flat_map(|d| [**p + *d * radius, **p + *d * radius * 0.5]),
+            );
             let (mut inside, mut outside) = (false, false);
             for q in probes {
-                if b.contains(q) { inside = true } else { outside = true }
+                if b.contains(q) {
+                    inside = true
+                } else {
+                    outside = true
+                }
             }
             !(inside && outside)
         })
@@ -75,7 +88,17 @@ fn recover(name: &str, object: &str) {
     let cams = scenario::cameras(name, 640, 360);
     let colours = scenario::observe(&truth, &cams, 0.01, 1.0, 3);
     let depth_labels = scenario::observe_depth_and_labels(&truth, &cams, &[object]);
-    let frames: Vec<RgbdFrame> = cams.iter().zip(&colours).zip(&depth_labels).map(|((c, col), (d, l))| RgbdFrame { camera: *c, colour: col, depth: d, labels: l }).collect();
+    let frames: Vec<RgbdFrame> = cams
+        .iter()
+        .zip(&colours)
+        .zip(&depth_labels)
+        .map(|((c, col), (d, l))| RgbdFrame {
+            camera: *c,
+            colour: col,
+            depth: d,
+            labels: l,
+        })
+        .collect();
     // Ground: every 3rd background depth point of every camera.
     let mut background = Vec::new();
     for f in &frames {
@@ -83,36 +106,102 @@ fn recover(name: &str, object: &str) {
         for k in (0..f.depth.len()).step_by(3) {
             let d = f.depth[k];
             if f.labels[k] == 0 && d > 0.0 {
-                let (u, v) = ((k as u32 % f.camera.width) as f32 + 0.5, (k as u32 / f.camera.width) as f32 + 0.5);
-                background.push(to_world.transform_point(Vec3::new((u - f.camera.cx) / f.camera.fx * d, (v - f.camera.cy) / f.camera.fy * d, d)));
+                let (u, v) = (
+                    (k as u32 % f.camera.width) as f32 + 0.5,
+                    (k as u32 / f.camera.width) as f32 + 0.5,
+                );
+                background.push(to_world.transform_point(Vec3::new(
+                    (u - f.camera.cx) / f.camera.fx * d,
+                    (v - f.camera.cy) / f.camera.fy * d,
+                    d,
+                )));
             }
         }
     }
     let (normal, height, inliers) = ground_ransac(&background, 300, 0.002, 11).unwrap();
-    println!("{name}: ground normal {normal}, height {height:.4} m from {inliers} of {} points", background.len());
+    println!(
+        "{name}: ground normal {normal}, height {height:.4} m from {inliers} of {} points",
+        background.len()
+    );
     // The physics ground is z = 0 (the table's Gaussians render within a millimetre or two of it).
-    assert!(normal.angle_between(Vec3::Z).to_degrees() < 0.5 && height.abs() < 0.002, "{normal} {height}");
+    assert!(
+        normal.angle_between(Vec3::Z).to_degrees() < 0.5 && height.abs() < 0.002,
+        "{normal} {height}"
+    );
     // Particles half the truth's size: one grid of them fits both the T's bar and its stem.
     let radius = 0.0025;
-    let (model, report) = object_from_rgbd(object, 1, &frames, (normal, height), radius, 0.0, &RenderSettings::default()).unwrap();
+    let (model, report) = object_from_rgbd(
+        object,
+        1,
+        &frames,
+        (normal, height),
+        radius,
+        0.0,
+        &RenderSettings::default(),
+    )
+    .unwrap();
     println!("{name}: {report:?}");
     let s = truth.shape_id(object).unwrap();
     let tp = truth.shapes.pose[s as usize];
-    println!("{name}: pose {:?} vs truth {:?}; yaw {:.2} vs {:.2} deg", model.pose.translation, tp.translation, model.pose.rotation.to_euler(glam::EulerRot::ZYX).0.to_degrees(), tp.rotation.to_euler(glam::EulerRot::ZYX).0.to_degrees());
-    let truth_solid = Solid { pose: tp, centres: truth.shapes.range(s).map(|i| truth.particles.rest[i]).collect(), half: 0.005 };
-    let model_solid = Solid { pose: model.pose, centres: model.particles.iter().map(|(p, _)| *p).collect(), half: radius };
+    println!(
+        "{name}: pose {:?} vs truth {:?}; yaw {:.2} vs {:.2} deg",
+        model.pose.translation,
+        tp.translation,
+        model
+            .pose
+            .rotation
+            .to_euler(glam::EulerRot::ZYX)
+            .0
+            .to_degrees(),
+        tp.rotation.to_euler(glam::EulerRot::ZYX).0.to_degrees()
+    );
+    let truth_solid = Solid {
+        pose: tp,
+        centres: truth
+            .shapes
+            .range(s)
+            .map(|i| truth.particles.rest[i])
+            .collect(),
+        half: 0.005,
+    };
+    let model_solid = Solid {
+        pose: model.pose,
+        centres: model.particles.iter().map(|(p, _)| *p).collect(),
+        half: radius,
+    };
     let (true_surface, model_surface) = (truth_solid.surface().len(), model_solid.surface().len());
     let missed = surface_points_off(&truth_solid, &model_solid, 0.003);
     let extra = surface_points_off(&model_solid, &truth_solid, 0.003);
-    println!("{name}: {} particles; true surface points farther than 3 mm from the recovered surface: {missed} of {true_surface}; recovered ones from the true surface: {extra} of {model_surface}", model.particles.len());
-    assert!(missed == 0 && extra == 0, "every surface point within 3 mm of the other surface");
+    println!(
+        "{name}: {} particles; true surface points farther than 3 mm from the recovered surface: {missed} of {true_surface}; recovered ones from the true surface: {extra} of {model_surface}",
+        model.particles.len()
+    );
+    assert!(
+        missed == 0 && extra == 0,
+        "every surface point within 3 mm of the other surface"
+    );
     let volume = |n: usize, half: f32| n as f32 * (2.0 * half).powi(3);
-    let (v_true, v_model) = (volume(truth_solid.centres.len(), 0.005), volume(model_solid.centres.len(), radius));
-    assert!((v_model / v_true - 1.0).abs() < 0.1, "volume {v_model} vs {v_true} m^3");
+    let (v_true, v_model) = (
+        volume(truth_solid.centres.len(), 0.005),
+        volume(model_solid.centres.len(), radius),
+    );
+    assert!(
+        (v_model / v_true - 1.0).abs() < 0.1,
+        "volume {v_model} vs {v_true} m^3"
+    );
     // The Gaussians took the object's colours from the images.
-    let mean_truth: Vec3 = truth.gaussians_of(s).iter().map(|&i| truth.gaussians.colour[i]).sum::<Vec3>() / truth.gaussians_of(s).len() as f32;
-    let mean_got: Vec3 = model.gaussians.iter().map(|g| g.colour).sum::<Vec3>() / model.gaussians.len() as f32;
-    assert!(mean_got.distance(mean_truth) < 0.1, "colours {mean_got} vs {mean_truth}");
+    let mean_truth: Vec3 = truth
+        .gaussians_of(s)
+        .iter()
+        .map(|&i| truth.gaussians.colour[i])
+        .sum::<Vec3>()
+        / truth.gaussians_of(s).len() as f32;
+    let mean_got: Vec3 =
+        model.gaussians.iter().map(|g| g.colour).sum::<Vec3>() / model.gaussians.len() as f32;
+    assert!(
+        mean_got.distance(mean_truth) < 0.1,
+        "colours {mean_got} vs {mean_truth}"
+    );
 }
 
 #[test]
@@ -130,10 +219,27 @@ fn replay_builds_the_world_from_the_recordings_first_rgbd_frames_and_tracks() {
     let dir = std::env::temp_dir().join(format!("pegs-init-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let pegs = |args: &[&str]| {
-        let o = std::process::Command::new(env!("CARGO_BIN_EXE_pegs")).args(args).output().unwrap();
-        assert!(o.status.success(), "pegs {args:?}: {}", String::from_utf8_lossy(&o.stderr));
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_pegs"))
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "pegs {args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
     };
-    pegs(&["scenario", "generate", "pushed_box", "--out", dir.to_str().unwrap(), "--width", "320", "--height", "180"]);
+    pegs(&[
+        "scenario",
+        "generate",
+        "pushed_box",
+        "--out",
+        dir.to_str().unwrap(),
+        "--width",
+        "320",
+        "--height",
+        "180",
+    ]);
     // No scenario in the configuration: the robot from the bundled URDF and the recorded joint
     // states, the ground and the box from the first depth frame and masks, the table fitted.
     let urdf = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/panda_pusher.urdf");
@@ -143,20 +249,51 @@ fn replay_builds_the_world_from_the_recordings_first_rgbd_frames_and_tracks() {
     );
     std::fs::write(dir.join("rgbd.yaml"), config).unwrap();
     let out = dir.join("out");
-    pegs(&["replay", dir.join("recording.mcap").to_str().unwrap(), "--config", dir.join("rgbd.yaml").to_str().unwrap(), "--out", out.to_str().unwrap()]);
-    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    pegs(&[
+        "replay",
+        dir.join("recording.mcap").to_str().unwrap(),
+        "--config",
+        dir.join("rgbd.yaml").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
     let init = &m["init"];
-    println!("ground {} box {} tracking {}", init["ground"], init["rgbd_objects"]["box"], m["tracking_error"]["box"]);
+    println!(
+        "ground {} box {} tracking {}",
+        init["ground"], init["rgbd_objects"]["box"], m["tracking_error"]["box"]
+    );
     let height = init["ground"][1].as_f64().unwrap();
-    assert!(height.abs() < 0.001 && init["ground"][0][2].as_f64().unwrap() > 0.9999, "ground plane z = 0: {}", init["ground"]);
-    assert_eq!(init["rgbd_objects"]["box"]["particles"], 360, "the 12 x 6 x 5 cm box in 1 cm particles");
-    let size: Vec<f64> = init["rgbd_objects"]["box"]["box_size"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!(
+        height.abs() < 0.001 && init["ground"][0][2].as_f64().unwrap() > 0.9999,
+        "ground plane z = 0: {}",
+        init["ground"]
+    );
+    assert_eq!(
+        init["rgbd_objects"]["box"]["particles"], 360,
+        "the 12 x 6 x 5 cm box in 1 cm particles"
+    );
+    let size: Vec<f64> = init["rgbd_objects"]["box"]["box_size"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
     let mut sorted = size.clone();
     sorted.sort_by(f64::total_cmp);
-    assert!((sorted[0] - 0.05).abs() < 0.002 && (sorted[1] - 0.06).abs() < 0.002 && (sorted[2] - 0.12).abs() < 0.002, "{size:?}");
+    assert!(
+        (sorted[0] - 0.05).abs() < 0.002
+            && (sorted[1] - 0.06).abs() < 0.002
+            && (sorted[2] - 0.12).abs() < 0.002,
+        "{size:?}"
+    );
     // The rod pushes the box 15 cm; the drift of the tracked box from the truth stays small.
     let e = &m["tracking_error"]["box"];
-    assert!(e["mean_mm"].as_f64().unwrap() < 3.0 && e["final_mm"].as_f64().unwrap() < 5.0, "{e}");
+    assert!(
+        e["mean_mm"].as_f64().unwrap() < 3.0 && e["final_mm"].as_f64().unwrap() < 5.0,
+        "{e}"
+    );
 }
 
 #[test]
@@ -165,9 +302,13 @@ fn without_masks_objects_are_the_clusters_of_depth_points_above_the_ground() {
     let cams = scenario::cameras("two_boxes", 320, 180);
     let observed = scenario::observe_depth_and_labels(&truth, &cams, &["box", "box2"]);
     // The robot is known (its particles); everything else above the ground is an object.
-    let robot: Vec<Vec3> = (0..truth.particles.len()).filter(|&i| truth.particles.phase[i] == pegs::world::Phase::Kinematic).map(|i| truth.particles.position[i]).collect();
+    let robot: Vec<Vec3> = (0..truth.particles.len())
+        .filter(|&i| truth.particles.phase[i] == pegs::world::Phase::Kinematic)
+        .map(|i| truth.particles.position[i])
+        .collect();
     let depths: Vec<&[f32]> = observed.iter().map(|(d, _)| d.as_slice()).collect();
-    let clusters = pegs::init::rgbd::cluster_labels(&cams, &depths, (Vec3::Z, 0.0), &robot, 0.004, 0.02, 0.01);
+    let clusters =
+        pegs::init::rgbd::cluster_labels(&cams, &depths, (Vec3::Z, 0.0), &robot, 0.004, 0.02, 0.01);
     // Cluster 1 is the larger box (12 x 6 x 5 cm), cluster 2 the 8 x 8 x 5 cm one.
     for (cluster, label) in [(1u8, 1u8), (2, 2)] {
         let (mut inter, mut union) = (0, 0);
@@ -196,22 +337,79 @@ fn to_polyline(p: Vec3, line: &[Vec3]) -> f32 {
 
 #[test]
 fn a_rope_is_recovered_as_a_chain_along_its_centre_line() {
-    let truth = scenario::build("dragged_rope", Pose::IDENTITY).unwrap().world;
+    let truth = scenario::build("dragged_rope", Pose::IDENTITY)
+        .unwrap()
+        .world;
     let cams = scenario::cameras("dragged_rope", 640, 360);
     let colours = scenario::observe(&truth, &cams, 0.01, 1.0, 5);
     let observed = scenario::observe_depth_and_labels(&truth, &cams, &["rope"]);
-    let frames: Vec<RgbdFrame> = cams.iter().zip(&colours).zip(&observed).map(|((c, col), (d, l))| RgbdFrame { camera: *c, colour: col, depth: d, labels: l }).collect();
-    let (chain, colour) = pegs::init::rgbd::rope_from_rgbd("rope", 1, &frames, (Vec3::Z, 0.0), 0.005).unwrap();
+    let frames: Vec<RgbdFrame> = cams
+        .iter()
+        .zip(&colours)
+        .zip(&observed)
+        .map(|((c, col), (d, l))| RgbdFrame {
+            camera: *c,
+            colour: col,
+            depth: d,
+            labels: l,
+        })
+        .collect();
+    let (chain, colour) =
+        pegs::init::rgbd::rope_from_rgbd("rope", 1, &frames, (Vec3::Z, 0.0), 0.005).unwrap();
     let s = truth.shape_id("rope").unwrap();
-    let want: Vec<Vec3> = truth.shapes.range(s).map(|i| truth.particles.position[i]).collect();
-    let off_truth = want.iter().map(|p| to_polyline(*p, &chain)).fold(0.0, f32::max);
-    let off_chain = chain.iter().map(|p| to_polyline(*p, &want)).fold(0.0, f32::max);
-    let ends = (chain[0].distance(want[0]).min(chain[0].distance(want[29])), chain[chain.len() - 1].distance(want[0]).min(chain[chain.len() - 1].distance(want[29])));
-    println!("rope: {} particles for {}; truth within {:.2} mm of the chain, chain within {:.2} mm of the truth; ends {:.2} / {:.2} mm; colour {colour}", chain.len(), want.len(), off_truth * 1e3, off_chain * 1e3, ends.0 * 1e3, ends.1 * 1e3);
+    let want: Vec<Vec3> = truth
+        .shapes
+        .range(s)
+        .map(|i| truth.particles.position[i])
+        .collect();
+    let off_truth = want
+        .iter()
+        .map(|p| to_polyline(*p, &chain))
+        .fold(0.0, f32::max);
+    let off_chain = chain
+        .iter()
+        .map(|p| to_polyline(*p, &want))
+        .fold(0.0, f32::max);
+    let ends = (
+        chain[0].distance(want[0]).min(chain[0].distance(want[29])),
+        chain[chain.len() - 1]
+            .distance(want[0])
+            .min(chain[chain.len() - 1].distance(want[29])),
+    );
+    println!(
+        "rope: {} particles for {}; truth within {:.2} mm of the chain, chain within {:.2} mm of the truth; ends {:.2} / {:.2} mm; colour {colour}",
+        chain.len(),
+        want.len(),
+        off_truth * 1e3,
+        off_chain * 1e3,
+        ends.0 * 1e3,
+        ends.1 * 1e3
+    );
     assert!(chain.len().abs_diff(want.len()) <= 1);
     // Along the rope the chain lies on its centre line; the end tied to the rod is partly hidden
     // under the rod, which costs a few millimetres there.
-    let lateral = chain.iter().map(|p| to_polyline(*p, &[want[0] + (want[0] - want[29]), want[29] + (want[29] - want[0])])).fold(0.0, f32::max);
-    assert!(lateral < 0.004 && off_chain < 0.005 && off_truth < 0.008 && ends.0 < 0.008 && ends.1 < 0.008, "lateral {lateral}");
-    assert!(colour.y > colour.x && colour.y > colour.z, "the rope is green: {colour}");
+    let lateral = chain
+        .iter()
+        .map(|p| {
+            to_polyline(
+                *p,
+                &[
+                    want[0] + (want[0] - want[29]),
+                    want[29] + (want[29] - want[0]),
+                ],
+            )
+        })
+        .fold(0.0, f32::max);
+    assert!(
+        lateral < 0.004
+            && off_chain < 0.005
+            && off_truth < 0.008
+            && ends.0 < 0.008
+            && ends.1 < 0.008,
+        "lateral {lateral}"
+    );
+    assert!(
+        colour.y > colour.x && colour.y > colour.z,
+        "the rope is green: {colour}"
+    );
 }

@@ -15,7 +15,10 @@ const G: f32 = 9.81;
 
 /// Exact physics, no numerical damping (the per-tick damping factor is tested separately).
 fn undamped() -> PhysicsConfig {
-    PhysicsConfig { damping: 1.0, ..PhysicsConfig::default() }
+    PhysicsConfig {
+        damping: 1.0,
+        ..PhysicsConfig::default()
+    }
 }
 
 /// Centroid height of a box lattice resting on z = 0: lowest layer centres at R.
@@ -33,7 +36,14 @@ fn run(world: &mut World, solver: &mut Solver, ticks: usize, mut each: impl FnMu
 
 fn box_on_ground(half: Vec3, x: Vec3) -> (World, ShapeId) {
     let mut b = WorldBuilder::new();
-    let s = b.add_rigid("box", &box_lattice(half, SPACING), R, M, Pose::from_translation(Vec3::new(x.x, x.y, resting_height(half.z))), Vec3::ONE);
+    let s = b.add_rigid(
+        "box",
+        &box_lattice(half, SPACING),
+        R,
+        M,
+        Pose::from_translation(Vec3::new(x.x, x.y, resting_height(half.z))),
+        Vec3::ONE,
+    );
     (b.build(), s)
 }
 
@@ -57,7 +67,14 @@ fn max_pairwise_strain(world: &World, s: ShapeId) -> f32 {
 fn dropped_box_rests_at_the_right_height_without_drift_or_jitter() {
     let half = Vec3::new(0.05, 0.05, 0.025);
     let mut b = WorldBuilder::new();
-    let s = b.add_rigid("box", &box_lattice(half, SPACING), R, M, Pose::new(Vec3::new(0.0, 0.0, 0.1), Quat::from_rotation_z(0.2)), Vec3::ONE);
+    let s = b.add_rigid(
+        "box",
+        &box_lattice(half, SPACING),
+        R,
+        M,
+        Pose::new(Vec3::new(0.0, 0.0, 0.1), Quat::from_rotation_z(0.2)),
+        Vec3::ONE,
+    );
     let mut w = b.build();
     let mut solver = Solver::new(PhysicsConfig::default(), &w).unwrap();
     run(&mut w, &mut solver, 60, |_| {}); // 2 s to land and settle
@@ -68,14 +85,28 @@ fn dropped_box_rests_at_the_right_height_without_drift_or_jitter() {
         let c = w.shape_centroid(s);
         lo = lo.min(c);
         hi = hi.max(c);
-        max_turn = max_turn.max(pegs::math::rotation_angle_between(start.rotation, w.shapes.pose[s as usize].rotation));
+        max_turn = max_turn.max(pegs::math::rotation_angle_between(
+            start.rotation,
+            w.shapes.pose[s as usize].rotation,
+        ));
     });
     let want = resting_height(half.z);
     let height_error = (w.shape_centroid(s).z - want).abs();
     let spread = hi - lo;
-    eprintln!("rest height error {:.4} mm, 10 s spread {:?} mm, rotation drift {:.2e} rad", height_error * 1e3, spread * 1e3, max_turn);
-    assert!(height_error < 0.1e-3, "box rests {height_error} m away from {want} m");
-    assert!(spread.max_element() < 0.1e-3, "drift or jitter above 0.1 mm over 10 s: {spread:?}");
+    eprintln!(
+        "rest height error {:.4} mm, 10 s spread {:?} mm, rotation drift {:.2e} rad",
+        height_error * 1e3,
+        spread * 1e3,
+        max_turn
+    );
+    assert!(
+        height_error < 0.1e-3,
+        "box rests {height_error} m away from {want} m"
+    );
+    assert!(
+        spread.max_element() < 0.1e-3,
+        "drift or jitter above 0.1 mm over 10 s: {spread:?}"
+    );
     assert!(max_turn < 1e-3, "resting box turned by {max_turn} rad");
 }
 
@@ -104,30 +135,65 @@ fn sliding_box_stops_after_v_squared_over_two_mu_g() {
     for v0 in [0.5f32, 1.0, 2.0] {
         let d = slide_distance(v0, config.clone());
         let want = v0 * v0 / (2.0 * mu * G);
-        eprintln!("v0 {v0} m/s: slid {:.4} m, v^2/(2 mu g) = {:.4} m ({:+.1} %)", d, want, 100.0 * (d - want) / want);
-        assert!((d - want).abs() < 0.1 * want, "v0 {v0}: slid {d} m, want {want} m");
+        eprintln!(
+            "v0 {v0} m/s: slid {:.4} m, v^2/(2 mu g) = {:.4} m ({:+.1} %)",
+            d,
+            want,
+            100.0 * (d - want) / want
+        );
+        assert!(
+            (d - want).abs() < 0.1 * want,
+            "v0 {v0}: slid {d} m, want {want} m"
+        );
     }
     // Doubling friction halves the distance: the law, not a tuned constant.
     let mut rough = undamped();
     rough.ground.kinetic_friction *= 2.0;
     rough.ground.static_friction *= 2.0;
     let ratio = slide_distance(1.0, undamped()) / slide_distance(1.0, rough);
-    assert!((ratio - 2.0).abs() < 0.2, "distance ratio for doubled mu: {ratio}");
+    assert!(
+        (ratio - 2.0).abs() < 0.2,
+        "distance ratio for doubled mu: {ratio}"
+    );
 }
 
 #[test]
 fn rigid_shapes_keep_their_rest_shape_through_collisions() {
     let mut b = WorldBuilder::new();
-    let t = b.add_rigid("tblock", &t_block_lattice(0.2, 0.05, 0.03, SPACING), R, M, Pose::new(Vec3::new(0.0, 0.0, 0.25), Quat::from_rotation_x(0.4)), Vec3::ONE);
-    let base = b.add_rigid("base", &box_lattice(Vec3::new(0.06, 0.06, 0.03), SPACING), R, M, Pose::from_translation(Vec3::new(0.02, 0.0, resting_height(0.03))), Vec3::ONE);
-    let bullet = b.add_rigid("bullet", &box_lattice(Vec3::splat(0.02), SPACING), R, 5.0 * M, Pose::from_translation(Vec3::new(-0.4, 0.0, 0.12)), Vec3::ONE);
+    let t = b.add_rigid(
+        "tblock",
+        &t_block_lattice(0.2, 0.05, 0.03, SPACING),
+        R,
+        M,
+        Pose::new(Vec3::new(0.0, 0.0, 0.25), Quat::from_rotation_x(0.4)),
+        Vec3::ONE,
+    );
+    let base = b.add_rigid(
+        "base",
+        &box_lattice(Vec3::new(0.06, 0.06, 0.03), SPACING),
+        R,
+        M,
+        Pose::from_translation(Vec3::new(0.02, 0.0, resting_height(0.03))),
+        Vec3::ONE,
+    );
+    let bullet = b.add_rigid(
+        "bullet",
+        &box_lattice(Vec3::splat(0.02), SPACING),
+        R,
+        5.0 * M,
+        Pose::from_translation(Vec3::new(-0.4, 0.0, 0.12)),
+        Vec3::ONE,
+    );
     b.set_velocity(bullet, Vec3::new(3.0, 0.0, 0.5));
     let mut w = b.build();
     let mut solver = Solver::new(PhysicsConfig::default(), &w).unwrap();
     let size = |s: ShapeId, w: &World| {
         let r = w.shapes.range(s);
         let rest = &w.particles.rest[r];
-        let (lo, hi) = rest.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+        let (lo, hi) = rest.iter().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        );
         (hi - lo).length()
     };
     let mut worst = [0.0f32; 3];
@@ -139,9 +205,15 @@ fn rigid_shapes_keep_their_rest_shape_through_collisions() {
         }
         contacts_seen += (solver_contacts(w, t) > 0) as usize;
     });
-    eprintln!("largest pairwise distance change / size: tblock {:.2e}, base {:.2e}, bullet {:.2e}", worst[0], worst[1], worst[2]);
+    eprintln!(
+        "largest pairwise distance change / size: tblock {:.2e}, base {:.2e}, bullet {:.2e}",
+        worst[0], worst[1], worst[2]
+    );
     assert!(contacts_seen > 0, "the T-block must actually hit something");
-    assert!(w.shape_centroid(t).distance(t_start) > 0.05, "the collisions must move the T-block");
+    assert!(
+        w.shape_centroid(t).distance(t_start) > 0.05,
+        "the collisions must move the T-block"
+    );
     for (k, v) in worst.iter().enumerate() {
         assert!(*v < 0.01, "shape {k} deformed by {v} of its size");
     }
@@ -152,16 +224,39 @@ fn solver_contacts(w: &World, s: ShapeId) -> usize {
     let p = &w.particles;
     let mine = w.shapes.range(s);
     mine.clone()
-        .filter(|&i| (0..p.len()).any(|j| !mine.contains(&j) && p.position[i].distance(p.position[j]) < p.radius[i] + p.radius[j] + 1e-4))
+        .filter(|&i| {
+            (0..p.len()).any(|j| {
+                !mine.contains(&j)
+                    && p.position[i].distance(p.position[j]) < p.radius[i] + p.radius[j] + 1e-4
+            })
+        })
         .count()
 }
 
 fn head_on(config: PhysicsConfig, on_ground: bool) -> (f32, f32, f32) {
     let half = Vec3::splat(0.025);
-    let z = if on_ground { resting_height(half.z) } else { 0.5 };
+    let z = if on_ground {
+        resting_height(half.z)
+    } else {
+        0.5
+    };
     let mut b = WorldBuilder::new();
-    let a = b.add_rigid("a", &box_lattice(half, SPACING), R, M, Pose::from_translation(Vec3::new(-0.1, 0.0, z)), Vec3::ONE);
-    let c = b.add_rigid("c", &box_lattice(half, SPACING), R, M, Pose::from_translation(Vec3::new(0.0, 0.0, z)), Vec3::ONE);
+    let a = b.add_rigid(
+        "a",
+        &box_lattice(half, SPACING),
+        R,
+        M,
+        Pose::from_translation(Vec3::new(-0.1, 0.0, z)),
+        Vec3::ONE,
+    );
+    let c = b.add_rigid(
+        "c",
+        &box_lattice(half, SPACING),
+        R,
+        M,
+        Pose::from_translation(Vec3::new(0.0, 0.0, z)),
+        Vec3::ONE,
+    );
     b.set_velocity(a, Vec3::new(1.0, 0.0, 0.0));
     let mut w = b.build();
     let mut solver = Solver::new(config, &w).unwrap();
@@ -169,7 +264,11 @@ fn head_on(config: PhysicsConfig, on_ground: bool) -> (f32, f32, f32) {
     let mut worst = 0.0f32;
     run(&mut w, &mut solver, 12, |w| {
         let p = w.linear_momentum();
-        let horizontal = Vec3::new(p.x - p0.x, p.y - p0.y, if on_ground { 0.0 } else { p.z - p0.z });
+        let horizontal = Vec3::new(
+            p.x - p0.x,
+            p.y - p0.y,
+            if on_ground { 0.0 } else { p.z - p0.z },
+        );
         worst = worst.max(horizontal.length() / p0.length());
     });
     (worst, w.shape_velocity(a).x, w.shape_velocity(c).x)
@@ -182,15 +281,24 @@ fn head_on_collision_exchanges_momentum_and_conserves_it() {
     flight.gravity = Vec3::ZERO;
     flight.ground.enabled = false;
     let (err, va, vc) = head_on(flight, false);
-    eprintln!("in flight: momentum error {:.2} %, after: striker {va:.3} m/s, struck {vc:.3} m/s", err * 100.0);
+    eprintln!(
+        "in flight: momentum error {:.2} %, after: striker {va:.3} m/s, struck {vc:.3} m/s",
+        err * 100.0
+    );
     assert!(err < 0.05, "momentum changed by {err}");
-    assert!(vc > 0.4 && va < 0.6 && vc >= va - 1e-3, "momentum not exchanged: striker {va}, struck {vc}");
+    assert!(
+        vc > 0.4 && va < 0.6 && vc >= va - 1e-3,
+        "momentum not exchanged: striker {va}, struck {vc}"
+    );
     // Sliding head-on on a frictionless table: horizontal momentum is conserved too.
     let mut slide = undamped();
     slide.ground.static_friction = 0.0;
     slide.ground.kinetic_friction = 0.0;
     let (err, va, vc) = head_on(slide, true);
-    eprintln!("frictionless slide: momentum error {:.2} %, striker {va:.3}, struck {vc:.3}", err * 100.0);
+    eprintln!(
+        "frictionless slide: momentum error {:.2} %, striker {va:.3}, struck {vc:.3}",
+        err * 100.0
+    );
     assert!(err < 0.05, "momentum changed by {err}");
     assert!(vc > 0.4, "struck box did not pick up momentum: {vc}");
 }
@@ -198,7 +306,10 @@ fn head_on_collision_exchanges_momentum_and_conserves_it() {
 fn rope_length(w: &World, s: ShapeId) -> f32 {
     let r = w.shapes.range(s);
     let p = &w.particles.position;
-    r.clone().zip(r.skip(1)).map(|(i, j)| p[i].distance(p[j])).sum()
+    r.clone()
+        .zip(r.skip(1))
+        .map(|(i, j)| p[i].distance(p[j]))
+        .sum()
 }
 
 #[test]
@@ -207,27 +318,63 @@ fn rope_keeps_its_length_while_hanging_and_while_dragged() {
     let rest_len = (n - 1) as f32 * SPACING;
     // Hanging: released horizontally from a fixed anchor, it swings down and hangs.
     let mut b = WorldBuilder::new();
-    let pts: Vec<Vec3> = (0..n).map(|k| Vec3::new(k as f32 * SPACING, 0.0, 1.0)).collect();
+    let pts: Vec<Vec3> = (0..n)
+        .map(|k| Vec3::new(k as f32 * SPACING, 0.0, 1.0))
+        .collect();
     let rope = b.add_rope("rope", &pts, R, M, 0.1, Vec3::ONE);
-    let anchor = b.add_static("anchor", &[Vec3::ZERO], R, Pose::from_translation(Vec3::new(-SPACING, 0.0, 1.0)), Vec3::ONE);
-    let (a0, r0) = (b.world().shapes.range(anchor).start, b.world().shapes.range(rope).start);
+    let anchor = b.add_static(
+        "anchor",
+        &[Vec3::ZERO],
+        R,
+        Pose::from_translation(Vec3::new(-SPACING, 0.0, 1.0)),
+        Vec3::ONE,
+    );
+    let (a0, r0) = (
+        b.world().shapes.range(anchor).start,
+        b.world().shapes.range(rope).start,
+    );
     b.attach(a0, r0);
     let mut w = b.build();
     let mut solver = Solver::new(PhysicsConfig::default(), &w).unwrap();
     let mut worst = 0.0f32;
-    run(&mut w, &mut solver, 150, |w| worst = worst.max((rope_length(w, rope) / rest_len - 1.0).abs()));
+    run(&mut w, &mut solver, 150, |w| {
+        worst = worst.max((rope_length(w, rope) / rest_len - 1.0).abs())
+    });
     let tip = w.particles.position[w.shapes.range(rope).end - 1];
-    eprintln!("hanging: worst length error {:.2} %, tip at z = {:.3}", worst * 100.0, tip.z);
-    assert!(tip.z < 1.0 - 0.8 * rest_len, "the rope must hang down (tip z {})", tip.z);
-    assert!(worst < 0.02, "hanging rope length changed by {:.2} %", worst * 100.0);
+    eprintln!(
+        "hanging: worst length error {:.2} %, tip at z = {:.3}",
+        worst * 100.0,
+        tip.z
+    );
+    assert!(
+        tip.z < 1.0 - 0.8 * rest_len,
+        "the rope must hang down (tip z {})",
+        tip.z
+    );
+    assert!(
+        worst < 0.02,
+        "hanging rope length changed by {:.2} %",
+        worst * 100.0
+    );
 
     // Dragged: lying on the table, pulled by a kinematic gripper along and then across itself.
     let mut b = WorldBuilder::new();
-    let pts: Vec<Vec3> = (0..n).map(|k| Vec3::new(k as f32 * SPACING, 0.0, R)).collect();
+    let pts: Vec<Vec3> = (0..n)
+        .map(|k| Vec3::new(k as f32 * SPACING, 0.0, R))
+        .collect();
     let rope = b.add_rope("rope", &pts, R, M, 0.1, Vec3::ONE);
     let start = Vec3::new(-SPACING, 0.0, R);
-    let grip = b.add_kinematic("gripper", &[Vec3::ZERO], R, Pose::from_translation(start), Vec3::ONE);
-    let (g0, r0) = (b.world().shapes.range(grip).start, b.world().shapes.range(rope).start);
+    let grip = b.add_kinematic(
+        "gripper",
+        &[Vec3::ZERO],
+        R,
+        Pose::from_translation(start),
+        Vec3::ONE,
+    );
+    let (g0, r0) = (
+        b.world().shapes.range(grip).start,
+        b.world().shapes.range(rope).start,
+    );
     b.attach(g0, r0);
     let mut w = b.build();
     let mut solver = Solver::new(PhysicsConfig::default(), &w).unwrap();
@@ -235,15 +382,32 @@ fn rope_keeps_its_length_while_hanging_and_while_dragged() {
     for tick in 0..120 {
         let t = (tick + 1) as f32 * solver.config().dt;
         // 0.3 m/s away from the rope (tension), then sideways.
-        let target = if t < 2.0 { start + Vec3::new(-0.3 * t, 0.0, 0.0) } else { start + Vec3::new(-0.6, 0.3 * (t - 2.0), 0.0) };
+        let target = if t < 2.0 {
+            start + Vec3::new(-0.3 * t, 0.0, 0.0)
+        } else {
+            start + Vec3::new(-0.6, 0.3 * (t - 2.0), 0.0)
+        };
         w.shapes.target[grip as usize] = Pose::from_translation(target);
         solver.step(&mut w).unwrap();
         worst = worst.max((rope_length(&w, rope) / rest_len - 1.0).abs());
     }
-    let moved = w.shape_centroid(rope).distance(pts.iter().copied().sum::<Vec3>() / n as f32);
-    eprintln!("dragged: worst length error {:.2} %, rope centroid moved {:.3} m", worst * 100.0, moved);
-    assert!(moved > 0.5, "the rope must follow the gripper (moved {moved} m)");
-    assert!(worst < 0.02, "dragged rope length changed by {:.2} %", worst * 100.0);
+    let moved = w
+        .shape_centroid(rope)
+        .distance(pts.iter().copied().sum::<Vec3>() / n as f32);
+    eprintln!(
+        "dragged: worst length error {:.2} %, rope centroid moved {:.3} m",
+        worst * 100.0,
+        moved
+    );
+    assert!(
+        moved > 0.5,
+        "the rope must follow the gripper (moved {moved} m)"
+    );
+    assert!(
+        worst < 0.02,
+        "dragged rope length changed by {:.2} %",
+        worst * 100.0
+    );
 }
 
 #[test]
@@ -251,17 +415,31 @@ fn kinematic_pusher_pushes_a_box_without_tunnelling() {
     for speed in [0.2f32, 1.0] {
         let half = Vec3::new(0.05, 0.05, 0.025);
         let mut b = WorldBuilder::new();
-        let bx = b.add_rigid("box", &box_lattice(half, SPACING), R, M, Pose::from_translation(Vec3::new(0.0, 0.0, resting_height(half.z))), Vec3::ONE);
+        let bx = b.add_rigid(
+            "box",
+            &box_lattice(half, SPACING),
+            R,
+            M,
+            Pose::from_translation(Vec3::new(0.0, 0.0, resting_height(half.z))),
+            Vec3::ONE,
+        );
         // A vertical column of particles 5 cm behind the box.
         let start = Vec3::new(-0.1, 0.0, 0.03);
-        let pusher = b.add_kinematic("pusher", &cylinder_lattice(0.01, 0.05, SPACING), R, Pose::from_translation(start), Vec3::ONE);
+        let pusher = b.add_kinematic(
+            "pusher",
+            &cylinder_lattice(0.01, 0.05, SPACING),
+            R,
+            Pose::from_translation(start),
+            Vec3::ONE,
+        );
         let mut w = b.build();
         let mut solver = Solver::new(PhysicsConfig::default(), &w).unwrap();
         let ticks = (0.4 / speed / solver.config().dt).round() as usize; // 0.4 m of travel
         let mut min_gap = f32::MAX;
         for tick in 0..ticks {
             let t = (tick + 1) as f32 * solver.config().dt;
-            w.shapes.target[pusher as usize] = Pose::from_translation(start + Vec3::new(speed * t, 0.0, 0.0));
+            w.shapes.target[pusher as usize] =
+                Pose::from_translation(start + Vec3::new(speed * t, 0.0, 0.0));
             solver.step(&mut w).unwrap();
             let p = &w.particles;
             for i in w.shapes.range(bx) {
@@ -271,17 +449,45 @@ fn kinematic_pusher_pushes_a_box_without_tunnelling() {
             }
             // Tunnelling would put the pusher inside the box: its axis must stay behind the box's
             // rear face (rear particle centres minus a radius), up to the grooves between rows.
-            let rear_face = w.shapes.range(bx).map(|i| p.position[i].x).fold(f32::MAX, f32::min) - R;
+            let rear_face = w
+                .shapes
+                .range(bx)
+                .map(|i| p.position[i].x)
+                .fold(f32::MAX, f32::min)
+                - R;
             let pusher_axis = w.shapes.pose[pusher as usize].translation.x;
-            assert!(pusher_axis < rear_face, "tick {tick}: pusher axis {pusher_axis} inside the box (rear face {rear_face})");
+            assert!(
+                pusher_axis < rear_face,
+                "tick {tick}: pusher axis {pusher_axis} inside the box (rear face {rear_face})"
+            );
         }
         let pusher_x = w.shapes.pose[pusher as usize].translation.x;
-        let box_rear = w.shapes.range(bx).map(|i| w.particles.position[i].x).fold(f32::MAX, f32::min);
-        eprintln!("pusher {speed} m/s: deepest overlap {:.3} mm, box pushed to {:.3} m, rear-to-pusher {:.2} mm", -min_gap * 1e3, w.shape_centroid(bx).x, (box_rear - pusher_x) * 1e3);
-        assert!(min_gap > -0.5 * R, "pusher overlapped the box by {} mm", -min_gap * 1e3);
+        let box_rear = w
+            .shapes
+            .range(bx)
+            .map(|i| w.particles.position[i].x)
+            .fold(f32::MAX, f32::min);
+        eprintln!(
+            "pusher {speed} m/s: deepest overlap {:.3} mm, box pushed to {:.3} m, rear-to-pusher {:.2} mm",
+            -min_gap * 1e3,
+            w.shape_centroid(bx).x,
+            (box_rear - pusher_x) * 1e3
+        );
+        assert!(
+            min_gap > -0.5 * R,
+            "pusher overlapped the box by {} mm",
+            -min_gap * 1e3
+        );
         // The box is carried along: it ends in contact with the pusher, about 0.4 - 0.05 m further.
-        assert!(w.shape_centroid(bx).x > 0.3, "box only reached {}", w.shape_centroid(bx).x);
-        assert!(box_rear - pusher_x < 2.0 * SPACING + 0.01, "box left behind or thrown far ahead");
+        assert!(
+            w.shape_centroid(bx).x > 0.3,
+            "box only reached {}",
+            w.shape_centroid(bx).x
+        );
+        assert!(
+            box_rear - pusher_x < 2.0 * SPACING + 0.01,
+            "box left behind or thrown far ahead"
+        );
     }
 }
 
@@ -335,16 +541,36 @@ fn removing_gravity_or_ground_makes_corrections_oscillate_as_in_the_ablation() {
     let (osc_none, z_none) = ablation_run(neither);
     eprintln!(
         "last-second x amplitude / height range (mm): all priors {:.2} / {:.2}, no gravity {:.2} / {:.2}, no gravity + no ground {:.2} / {:.2}",
-        osc_all * 1e3, z_all * 1e3, osc_ng * 1e3, z_ng * 1e3, osc_none * 1e3, z_none * 1e3
+        osc_all * 1e3,
+        z_all * 1e3,
+        osc_ng * 1e3,
+        z_ng * 1e3,
+        osc_none * 1e3,
+        z_none * 1e3
     );
     // With gravity and ground, friction settles the object and it stays on the table.
-    assert!(osc_all < 1e-3, "with all priors the box still moves {osc_all} m");
-    assert!(z_all < 1e-3, "with all priors the box left the table ({z_all} m)");
+    assert!(
+        osc_all < 1e-3,
+        "with all priors the box still moves {osc_all} m"
+    );
+    assert!(
+        z_all < 1e-3,
+        "with all priors the box left the table ({z_all} m)"
+    );
     // Without gravity there is no normal force, hence no friction: the spring keeps oscillating.
-    assert!(osc_ng > 10.0 * osc_all.max(1e-4) && osc_ng > 5e-3, "no-gravity run did not oscillate: {osc_ng}");
+    assert!(
+        osc_ng > 10.0 * osc_all.max(1e-4) && osc_ng > 5e-3,
+        "no-gravity run did not oscillate: {osc_ng}"
+    );
     // Without ground and gravity it oscillates too and drifts vertically with the noise.
-    assert!(osc_none > 5e-3, "no-ground run did not oscillate: {osc_none}");
-    assert!(z_none > 5.0 * z_all.max(1e-4), "no-ground run should wander vertically: {z_none}");
+    assert!(
+        osc_none > 5e-3,
+        "no-ground run did not oscillate: {osc_none}"
+    );
+    assert!(
+        z_none > 5.0 * z_all.max(1e-4),
+        "no-ground run should wander vertically: {z_none}"
+    );
 }
 
 #[test]
@@ -354,7 +580,14 @@ fn per_tick_damping_removes_the_configured_fraction_of_velocity() {
     config.ground.enabled = false;
     config.damping = 0.9;
     let mut b = WorldBuilder::new();
-    let s = b.add_rigid("box", &box_lattice(Vec3::splat(0.02), SPACING), R, M, Pose::IDENTITY, Vec3::ONE);
+    let s = b.add_rigid(
+        "box",
+        &box_lattice(Vec3::splat(0.02), SPACING),
+        R,
+        M,
+        Pose::IDENTITY,
+        Vec3::ONE,
+    );
     b.set_velocity(s, Vec3::new(1.0, 0.0, 0.0));
     let mut w = b.build();
     let mut solver = Solver::new(config, &w).unwrap();
@@ -383,33 +616,54 @@ fn constant_force_accelerates_at_f_over_m_and_mass_scale_halves_it() {
         let (mut w, s, mass) = box_world();
         let mut config = frictionless();
         config.effects = vec![
-            Effect::ConstantForce { object: Some("box".into()), force: Vec3::new(0.5, 0.0, 0.0) },
-            Effect::MassScale { object: "box".into(), factor },
+            Effect::ConstantForce {
+                object: Some("box".into()),
+                force: Vec3::new(0.5, 0.0, 0.0),
+            },
+            Effect::MassScale {
+                object: "box".into(),
+                factor,
+            },
         ];
         let mut solver = Solver::new(config, &w).unwrap();
         run(&mut w, &mut solver, 30, |_| {});
         let a = w.shape_velocity(s).x / 1.0;
         let want = 0.5 / (mass * factor);
-        assert!((a - want).abs() < 0.02 * want, "mass factor {factor}: a = {a}, want {want}");
+        assert!(
+            (a - want).abs() < 0.02 * want,
+            "mass factor {factor}: a = {a}, want {want}"
+        );
     }
 }
 
 #[test]
 fn tilted_table_holds_a_box_below_the_friction_angle_and_slides_it_above() {
     let config = undamped();
-    let (mu_s, mu_k) = (config.ground.static_friction, config.ground.kinetic_friction);
+    let (mu_s, mu_k) = (
+        config.ground.static_friction,
+        config.ground.kinetic_friction,
+    );
     for (angle, should_slide) in [(0.8 * mu_s.atan(), false), (1.3 * mu_s.atan(), true)] {
         let (mut w, s, _) = box_world();
         let mut c = config.clone();
-        c.effects = vec![Effect::TableTilt { angle, azimuth: 0.0 }];
+        c.effects = vec![Effect::TableTilt {
+            angle,
+            azimuth: 0.0,
+        }];
         let mut solver = Solver::new(c, &w).unwrap();
         run(&mut w, &mut solver, 30, |_| {});
         let v = w.shape_velocity(s).x;
         if should_slide {
             let want = G * (angle.sin() - mu_k * angle.cos()); // after 1 s
-            assert!((v - want).abs() < 0.1 * want, "angle {angle}: v {v}, want {want}");
+            assert!(
+                (v - want).abs() < 0.1 * want,
+                "angle {angle}: v {v}, want {want}"
+            );
         } else {
-            assert!(v.abs() < 1e-3, "angle {angle}: box below the friction angle slid at {v}");
+            assert!(
+                v.abs() < 1e-3,
+                "angle {angle}: box below the friction angle slid at {v}"
+            );
         }
     }
 }
@@ -434,10 +688,15 @@ fn spring_to_anchor_oscillates_with_the_mass_spring_period() {
     let mut xs = Vec::new();
     run(&mut w, &mut solver, 150, |w| xs.push(w.shape_centroid(s).x));
     let dt = solver.config().dt;
-    let peak = (5..xs.len() - 1).find(|&k| xs[k] >= xs[k - 1] && xs[k] >= xs[k + 1] && xs[k] > -0.02).expect("no return peak");
+    let peak = (5..xs.len() - 1)
+        .find(|&k| xs[k] >= xs[k - 1] && xs[k] >= xs[k + 1] && xs[k] > -0.02)
+        .expect("no return peak");
     let period = (peak + 1) as f32 * dt;
     let want = 2.0 * std::f32::consts::PI * (mass / stiffness).sqrt();
-    assert!((period - want).abs() < 0.08 * want, "period {period} s, want {want} s");
+    assert!(
+        (period - want).abs() < 0.08 * want,
+        "period {period} s, want {want} s"
+    );
 }
 
 #[test]
@@ -445,7 +704,10 @@ fn viscous_drag_decays_velocity_exponentially() {
     let (mut w, s, mass) = box_world();
     let b = 0.2;
     let mut config = frictionless();
-    config.effects = vec![Effect::ViscousDrag { object: None, coefficient: b }];
+    config.effects = vec![Effect::ViscousDrag {
+        object: None,
+        coefficient: b,
+    }];
     let mut solver = Solver::new(config, &w).unwrap();
     for i in w.shapes.range(s) {
         w.particles.velocity[i].x = 1.0;
@@ -462,16 +724,36 @@ fn rebound_height(drop: f32, restitution: Option<f32>) -> f32 {
     let half = Vec3::new(0.03, 0.03, 0.02);
     let rest = resting_height(half.z);
     let mut b = WorldBuilder::new();
-    let s = b.add_rigid("box", &box_lattice(half, SPACING), R, M, Pose::from_translation(Vec3::new(0.0, 0.0, rest + drop)), Vec3::ONE);
+    let s = b.add_rigid(
+        "box",
+        &box_lattice(half, SPACING),
+        R,
+        M,
+        Pose::from_translation(Vec3::new(0.0, 0.0, rest + drop)),
+        Vec3::ONE,
+    );
     let mut w = b.build();
     let mut config = undamped();
-    config.effects = restitution.map(|e| Effect::Restitution { object: Some("box".into()), coefficient: e }).into_iter().collect();
+    config.effects = restitution
+        .map(|e| Effect::Restitution {
+            object: Some("box".into()),
+            coefficient: e,
+        })
+        .into_iter()
+        .collect();
     let mut solver = Solver::new(config, &w).unwrap();
     let mut heights = Vec::new();
-    run(&mut w, &mut solver, 45, |w| heights.push(w.shape_centroid(s).z - rest));
+    run(&mut w, &mut solver, 45, |w| {
+        heights.push(w.shape_centroid(s).z - rest)
+    });
     // The first bounce: from the first tick the box rises to the first it falls again.
-    let Some(up) = heights.windows(2).position(|h| h[1] > h[0] + 1e-5) else { return 0.0 };
-    let down = heights[up..].windows(2).position(|h| h[1] < h[0] - 1e-5).map_or(heights.len(), |d| up + d + 1);
+    let Some(up) = heights.windows(2).position(|h| h[1] > h[0] + 1e-5) else {
+        return 0.0;
+    };
+    let down = heights[up..]
+        .windows(2)
+        .position(|h| h[1] < h[0] - 1e-5)
+        .map_or(heights.len(), |d| up + d + 1);
     heights[up..down].iter().copied().fold(0.0, f32::max)
 }
 
@@ -485,7 +767,10 @@ fn restitution_bounces_a_dropped_box_to_e_squared_of_its_height() {
     for e in [0.5f32, 0.8] {
         let h = rebound_height(drop, Some(e));
         let want = e * e * drop;
-        assert!((h - want).abs() < 0.15 * want, "e {e}: rebound {h} m, want {want} m");
+        assert!(
+            (h - want).abs() < 0.15 * want,
+            "e {e}: rebound {h} m, want {want} m"
+        );
     }
 }
 
@@ -493,10 +778,18 @@ fn restitution_bounces_a_dropped_box_to_e_squared_of_its_height() {
 fn friction_patch_stops_a_box_sooner_than_the_plain_table() {
     let plain = slide_distance(1.0, undamped());
     let mut patchy = undamped();
-    patchy.effects = vec![Effect::FrictionPatch { center: glam::Vec2::new(0.5, 0.0), half_size: glam::Vec2::splat(0.5), static_friction: 1.0, kinetic_friction: 0.8 }];
+    patchy.effects = vec![Effect::FrictionPatch {
+        center: glam::Vec2::new(0.5, 0.0),
+        half_size: glam::Vec2::splat(0.5),
+        static_friction: 1.0,
+        kinetic_friction: 0.8,
+    }];
     let rough = slide_distance(1.0, patchy);
     let want = 1.0 / (2.0 * 0.8 * G);
-    assert!((rough - want).abs() < 0.1 * want, "on the patch: {rough}, want {want} (plain {plain})");
+    assert!(
+        (rough - want).abs() < 0.1 * want,
+        "on the patch: {rough}, want {want} (plain {plain})"
+    );
 }
 
 #[test]
@@ -505,31 +798,69 @@ fn center_of_mass_offset_tips_a_balanced_plank_towards_the_heavy_side() {
     // goes down, and the opposite shift tips it the other way.
     let drop = |offset_x: f32| {
         let mut b = WorldBuilder::new();
-        let ridge: Vec<Vec3> = (-4..=4).map(|k| Vec3::new(0.0, k as f32 * SPACING, 0.0)).collect();
-        b.add_static("ridge", &ridge, R, Pose::from_translation(Vec3::new(0.0, 0.0, 0.1)), Vec3::ONE);
-        let plank = b.add_rigid("plank", &box_lattice(Vec3::new(0.15, 0.02, 0.01), SPACING), R, M, Pose::from_translation(Vec3::new(0.0, 0.0, 0.1 + 2.0 * R + R)), Vec3::ONE);
+        let ridge: Vec<Vec3> = (-4..=4)
+            .map(|k| Vec3::new(0.0, k as f32 * SPACING, 0.0))
+            .collect();
+        b.add_static(
+            "ridge",
+            &ridge,
+            R,
+            Pose::from_translation(Vec3::new(0.0, 0.0, 0.1)),
+            Vec3::ONE,
+        );
+        let plank = b.add_rigid(
+            "plank",
+            &box_lattice(Vec3::new(0.15, 0.02, 0.01), SPACING),
+            R,
+            M,
+            Pose::from_translation(Vec3::new(0.0, 0.0, 0.1 + 2.0 * R + R)),
+            Vec3::ONE,
+        );
         let mut w = b.build();
         let config = PhysicsConfig {
-            effects: vec![Effect::CenterOfMassOffset { object: "plank".into(), offset: Vec3::new(offset_x, 0.0, 0.0) }],
+            effects: vec![Effect::CenterOfMassOffset {
+                object: "plank".into(),
+                offset: Vec3::new(offset_x, 0.0, 0.0),
+            }],
             ..PhysicsConfig::default()
         };
         let mut solver = Solver::new(config, &w).unwrap();
         run(&mut w, &mut solver, 20, |_| {});
         let pose = w.shapes.pose[plank as usize];
         // Height of the +x end minus the -x end.
-        pose.transform_point(Vec3::new(0.15, 0.0, 0.0)).z - pose.transform_point(Vec3::new(-0.15, 0.0, 0.0)).z
+        pose.transform_point(Vec3::new(0.15, 0.0, 0.0)).z
+            - pose.transform_point(Vec3::new(-0.15, 0.0, 0.0)).z
     };
     let right_heavy = drop(0.03);
     let left_heavy = drop(-0.03);
-    assert!(right_heavy < -0.05, "mass shifted to +x: +x end should drop, height difference {right_heavy}");
-    assert!(left_heavy > 0.05, "mass shifted to -x: -x end should drop, height difference {left_heavy}");
+    assert!(
+        right_heavy < -0.05,
+        "mass shifted to +x: +x end should drop, height difference {right_heavy}"
+    );
+    assert!(
+        left_heavy > 0.05,
+        "mass shifted to -x: -x end should drop, height difference {left_heavy}"
+    );
 }
 
 #[test]
 fn non_finite_inputs_are_rejected_and_counted_without_corrupting_the_world() {
     let mut b = WorldBuilder::new();
-    let bx = b.add_rigid("box", &box_lattice(Vec3::splat(0.02), SPACING), R, M, Pose::from_translation(Vec3::new(0.0, 0.0, resting_height(0.02))), Vec3::ONE);
-    let pusher = b.add_kinematic("pusher", &[Vec3::ZERO], R, Pose::from_translation(Vec3::new(-0.2, 0.0, 0.02)), Vec3::ONE);
+    let bx = b.add_rigid(
+        "box",
+        &box_lattice(Vec3::splat(0.02), SPACING),
+        R,
+        M,
+        Pose::from_translation(Vec3::new(0.0, 0.0, resting_height(0.02))),
+        Vec3::ONE,
+    );
+    let pusher = b.add_kinematic(
+        "pusher",
+        &[Vec3::ZERO],
+        R,
+        Pose::from_translation(Vec3::new(-0.2, 0.0, 0.02)),
+        Vec3::ONE,
+    );
     let mut w = b.build();
     let mut solver = Solver::new(PhysicsConfig::default(), &w).unwrap();
     let first = w.shapes.range(bx).start;
@@ -539,9 +870,18 @@ fn non_finite_inputs_are_rejected_and_counted_without_corrupting_the_world() {
     solver.step(&mut w).unwrap();
     assert_eq!(solver.stats.rejected_forces, 2);
     assert_eq!(solver.stats.rejected_poses, 1);
-    assert!(w.particles.position.iter().all(|p| p.is_finite()), "state must stay finite");
-    assert!((w.shapes.pose[pusher as usize].translation - Vec3::new(-0.2, 0.0, 0.02)).length() < 1e-6, "pusher keeps its pose");
-    assert!(w.shape_velocity(bx).length() < 1e-3, "resting box unaffected");
+    assert!(
+        w.particles.position.iter().all(|p| p.is_finite()),
+        "state must stay finite"
+    );
+    assert!(
+        (w.shapes.pose[pusher as usize].translation - Vec3::new(-0.2, 0.0, 0.02)).length() < 1e-6,
+        "pusher keeps its pose"
+    );
+    assert!(
+        w.shape_velocity(bx).length() < 1e-3,
+        "resting box unaffected"
+    );
 }
 
 #[test]
@@ -556,5 +896,10 @@ fn stepping_is_deterministic() {
     };
     let a = run_scene();
     let b = run_scene();
-    assert!(a.iter().zip(&b).all(|(x, y)| x.to_array().map(f32::to_bits) == y.to_array().map(f32::to_bits)), "two runs differ");
+    assert!(
+        a.iter()
+            .zip(&b)
+            .all(|(x, y)| x.to_array().map(f32::to_bits) == y.to_array().map(f32::to_bits)),
+        "two runs differ"
+    );
 }

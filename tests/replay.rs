@@ -5,8 +5,15 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn pegs(args: &[&str]) -> std::process::Output {
-    let o = Command::new(env!("CARGO_BIN_EXE_pegs")).args(args).output().unwrap();
-    assert!(o.status.success(), "pegs {args:?} failed: {}", String::from_utf8_lossy(&o.stderr));
+    let o = Command::new(env!("CARGO_BIN_EXE_pegs"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "pegs {args:?} failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     o
 }
 
@@ -21,7 +28,14 @@ fn metrics(dir: &Path) -> serde_json::Value {
 }
 
 fn replay(rec: &Path, config: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args = vec!["replay", rec.to_str().unwrap(), "--config", config.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    let mut args = vec![
+        "replay",
+        rec.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
     args.extend_from_slice(extra);
     pegs(&args);
     metrics(out)
@@ -30,69 +44,160 @@ fn replay(rec: &Path, config: &Path, out: &Path, extra: &[&str]) -> serde_json::
 #[test]
 fn generated_recording_replays_deterministically_and_visual_forces_beat_physics_only() {
     let scn = scratch("scn");
-    pegs(&["scenario", "generate", "pushed_box", "--out", scn.to_str().unwrap(), "--width", "320", "--height", "180"]);
+    pegs(&[
+        "scenario",
+        "generate",
+        "pushed_box",
+        "--out",
+        scn.to_str().unwrap(),
+        "--width",
+        "320",
+        "--height",
+        "180",
+    ]);
     let (rec, cfg) = (scn.join("recording.mcap"), scn.join("config.yaml"));
     let (a, b, p) = (scratch("a"), scratch("b"), scratch("p"));
     let m = replay(&rec, &cfg, &a, &["--compare"]);
     let csv = std::fs::read_to_string(a.join("objects.csv")).unwrap();
     assert_eq!(csv.lines().next(), Some("t,object,x,y,z,qx,qy,qz,qw"));
     assert_eq!(m["ticks"], 135);
-    assert_eq!(csv.lines().count(), 1 + 136, "one row per object per tick plus the start");
+    assert_eq!(
+        csv.lines().count(),
+        1 + 136,
+        "one row per object per tick plus the start"
+    );
     assert_eq!(m["cameras"].as_array().unwrap().len(), 3);
     let with = m["tracking_error"]["box"]["mean_mm"].as_f64().unwrap();
     let cmp = &m["comparison"]["box"];
-    let (physics, visual) = (cmp["physics_only_mean_mm"].as_f64().unwrap(), cmp["visual_forces_only_mean_mm"].as_f64().unwrap());
-    eprintln!("replayed pushed box: mean error {with:.2} mm; physics only {physics:.2} mm, visual forces only {visual:.2} mm");
+    let (physics, visual) = (
+        cmp["physics_only_mean_mm"].as_f64().unwrap(),
+        cmp["visual_forces_only_mean_mm"].as_f64().unwrap(),
+    );
+    eprintln!(
+        "replayed pushed box: mean error {with:.2} mm; physics only {physics:.2} mm, visual forces only {visual:.2} mm"
+    );
     assert!(with < 5.0, "tracking error {with} mm");
     // As in the paper: clearly better than either half alone.
-    assert!(physics > 3.0 * with && visual > 3.0 * with, "physics only {physics}, visual only {visual}, both {with} mm");
+    assert!(
+        physics > 3.0 * with && visual > 3.0 * with,
+        "physics only {physics}, visual only {visual}, both {with} mm"
+    );
     // The ablated runs are written beside the main one, and --no-visual-forces reproduces one.
-    assert!(a.join("physics_only/objects.csv").is_file() && a.join("visual_forces_only/metrics.json").is_file());
-    let physics_again = replay(&rec, &cfg, &p, &["--no-visual-forces"])["tracking_error"]["box"]["mean_mm"].as_f64().unwrap();
+    assert!(
+        a.join("physics_only/objects.csv").is_file()
+            && a.join("visual_forces_only/metrics.json").is_file()
+    );
+    let physics_again =
+        replay(&rec, &cfg, &p, &["--no-visual-forces"])["tracking_error"]["box"]["mean_mm"]
+            .as_f64()
+            .unwrap();
     assert_eq!(physics_again, physics);
     replay(&rec, &cfg, &b, &[]);
-    assert_eq!(csv, std::fs::read_to_string(b.join("objects.csv")).unwrap(), "replay is not deterministic");
+    assert_eq!(
+        csv,
+        std::fs::read_to_string(b.join("objects.csv")).unwrap(),
+        "replay is not deterministic"
+    );
 }
 
 #[test]
 fn a_truncated_recording_replays_what_it_holds_and_says_so() {
     let scn = scratch("trunc");
-    pegs(&["scenario", "generate", "resting_box", "--out", scn.to_str().unwrap(), "--width", "160", "--height", "90", "--seconds", "1.5"]);
+    pegs(&[
+        "scenario",
+        "generate",
+        "resting_box",
+        "--out",
+        scn.to_str().unwrap(),
+        "--width",
+        "160",
+        "--height",
+        "90",
+        "--seconds",
+        "1.5",
+    ]);
     let bytes = std::fs::read(scn.join("recording.mcap")).unwrap();
     let cut = scn.join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
     let out = scratch("trunc-out");
     let m = replay(&cut, &scn.join("config.yaml"), &out, &[]);
     let warnings = m["warnings"].as_array().unwrap();
-    assert!(warnings.iter().any(|w| w.as_str().unwrap().contains("damaged")), "{warnings:?}");
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("damaged")),
+        "{warnings:?}"
+    );
     let ticks = m["ticks"].as_u64().unwrap();
-    assert!(ticks > 0 && ticks < 45, "{ticks} ticks from two thirds of a 1.5 s recording");
+    assert!(
+        ticks > 0 && ticks < 45,
+        "{ticks} ticks from two thirds of a 1.5 s recording"
+    );
 }
 
 #[test]
 fn replay_without_a_scene_is_a_clear_error() {
     let scn = scratch("noscene");
-    pegs(&["scenario", "generate", "resting_box", "--out", scn.to_str().unwrap(), "--width", "160", "--height", "90", "--seconds", "0.2"]);
+    pegs(&[
+        "scenario",
+        "generate",
+        "resting_box",
+        "--out",
+        scn.to_str().unwrap(),
+        "--width",
+        "160",
+        "--height",
+        "90",
+        "--seconds",
+        "0.2",
+    ]);
     std::fs::write(scn.join("empty.yaml"), "pegs:\n  ros__parameters: {}\n").unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_pegs"))
-        .args(["replay", scn.join("recording.mcap").to_str().unwrap(), "--config", scn.join("empty.yaml").to_str().unwrap(), "--out", scratch("x").to_str().unwrap()])
+        .args([
+            "replay",
+            scn.join("recording.mcap").to_str().unwrap(),
+            "--config",
+            scn.join("empty.yaml").to_str().unwrap(),
+            "--out",
+            scratch("x").to_str().unwrap(),
+        ])
         .output()
         .unwrap();
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("scene.scenario") && !err.contains("panicked"), "{err}");
+    assert!(
+        err.contains("scene.scenario") && !err.contains("panicked"),
+        "{err}"
+    );
 }
 
 #[test]
 fn a_camera_that_stops_publishing_drops_out_and_is_reported() {
     // Rewrite a recording without cam1's images after 0.5 s.
     let scn = scratch("stop");
-    pegs(&["scenario", "generate", "resting_box", "--out", scn.to_str().unwrap(), "--width", "160", "--height", "90", "--seconds", "1.5"]);
+    pegs(&[
+        "scenario",
+        "generate",
+        "resting_box",
+        "--out",
+        scn.to_str().unwrap(),
+        "--width",
+        "160",
+        "--height",
+        "90",
+        "--seconds",
+        "1.5",
+    ]);
     let (messages, problem) = pegs::record::read_messages(&scn.join("recording.mcap")).unwrap();
     assert!(problem.is_none());
     let cut = scn.join("cam1_stops.mcap");
     let mut w = pegs::record::RecordingWriter::create(&cut).unwrap();
-    let schemas = [pegs::msgs::schema::image(), pegs::msgs::schema::camera_info(), pegs::msgs::schema::joint_state(), pegs::msgs::schema::tf_message()];
+    let schemas = [
+        pegs::msgs::schema::image(),
+        pegs::msgs::schema::camera_info(),
+        pegs::msgs::schema::joint_state(),
+        pegs::msgs::schema::tf_message(),
+    ];
     for m in &messages {
         if m.topic == "/cam1/color/image_raw" && m.time > 0.5 {
             continue;
@@ -106,26 +211,65 @@ fn a_camera_that_stops_publishing_drops_out_and_is_reported() {
     let stale = m["stale_camera_ticks"]["cam1"].as_u64().unwrap();
     // cam1's last image is the one at 14/30 s (0.5 s itself is f32-rounded just past the cut), so
     // it is more than 0.5 s old from about 0.97 s on: ticks 29..=45, give or take rounding.
-    assert!((15..=18).contains(&stale), "cam1 should be stale from about 0.97 s on: {stale} ticks");
+    assert!(
+        (15..=18).contains(&stale),
+        "cam1 should be stale from about 0.97 s on: {stale} ticks"
+    );
     assert!(m["stale_camera_ticks"].get("cam0").is_none());
-    assert!(m["warnings"].as_array().unwrap().iter().any(|w| w.as_str().unwrap().contains("cam1")));
-    assert_eq!(m["ticks"], 45, "the replay continues to the end with the other cameras");
-    assert!(m["tracking_error"]["box"]["final_mm"].as_f64().unwrap() < 10.0, "and keeps tracking");
+    assert!(
+        m["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("cam1"))
+    );
+    assert_eq!(
+        m["ticks"], 45,
+        "the replay continues to the end with the other cameras"
+    );
+    assert!(
+        m["tracking_error"]["box"]["final_mm"].as_f64().unwrap() < 10.0,
+        "and keeps tracking"
+    );
 }
 
 #[test]
 fn a_rope_is_measured_against_its_true_particles_and_fewer_cameras_can_be_chosen() {
     let scn = scratch("rope");
-    pegs(&["scenario", "generate", "dragged_rope", "--out", scn.to_str().unwrap(), "--width", "160", "--height", "90", "--seconds", "1"]);
+    pegs(&[
+        "scenario",
+        "generate",
+        "dragged_rope",
+        "--out",
+        scn.to_str().unwrap(),
+        "--width",
+        "160",
+        "--height",
+        "90",
+        "--seconds",
+        "1",
+    ]);
     let truth = std::fs::read_to_string(scn.join("ground_truth_particles.csv")).unwrap();
     assert_eq!(truth.lines().next(), Some("t,object,particle,x,y,z"));
-    assert_eq!(truth.lines().count() - 1, 31 * 30, "30 rope particles per frame, 31 frames");
+    assert_eq!(
+        truth.lines().count() - 1,
+        31 * 30,
+        "30 rope particles per frame, 31 frames"
+    );
     let (rec, cfg) = (scn.join("recording.mcap"), scn.join("config.yaml"));
     let (all, one) = (scratch("rope-all"), scratch("rope-one"));
     let m = replay(&rec, &cfg, &all, &[]);
     // Started 1 cm / 5 deg off its true shape: the particle-wise error says so at the start.
     let series = std::fs::read_to_string(all.join("tracking_error.csv")).unwrap();
-    let first: f64 = series.lines().nth(1).unwrap().split(',').nth(2).unwrap().parse().unwrap();
+    let first: f64 = series
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .nth(2)
+        .unwrap()
+        .parse()
+        .unwrap();
     assert!((8.0..15.0).contains(&first), "first error {first} mm");
     assert!(m["tracking_error"]["rope"]["mean_mm"].as_f64().unwrap() > 0.0);
     let m1 = replay(&rec, &cfg, &one, &["--cameras", "1"]);
@@ -137,20 +281,66 @@ fn a_rope_is_measured_against_its_true_particles_and_fewer_cameras_can_be_chosen
 fn the_ablation_sweep_writes_plots_and_a_summary_row_per_setting() {
     let out = scratch("ablate");
     let o = pegs(&[
-        "ablate", "--out", out.to_str().unwrap(), "--scenarios", "pushed_box", "--base", "96x54", "--seconds", "0.4", "--resolutions", "96x54,64x36",
-        "--cameras", "1,3", "--gains", "0,1.5", "--learning-rates", "0.0015", "--iterations", "5",
+        "ablate",
+        "--out",
+        out.to_str().unwrap(),
+        "--scenarios",
+        "pushed_box",
+        "--base",
+        "96x54",
+        "--seconds",
+        "0.4",
+        "--resolutions",
+        "96x54,64x36",
+        "--cameras",
+        "1,3",
+        "--gains",
+        "0,1.5",
+        "--learning-rates",
+        "0.0015",
+        "--iterations",
+        "5",
     ]);
     let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
-    assert_eq!(String::from_utf8_lossy(&o.stdout).lines().next(), summary.lines().next());
+    assert_eq!(
+        String::from_utf8_lossy(&o.stdout).lines().next(),
+        summary.lines().next()
+    );
     // 4 priors + 2 camera counts + 2 resolutions + 2 gains + 1 + 1 settings, after two header lines.
     assert_eq!(summary.lines().count(), 2 + 12, "{summary}");
-    for group in ["priors", "cameras", "resolution", "gain", "learning_rate", "adam_iterations"] {
+    for group in [
+        "priors",
+        "cameras",
+        "resolution",
+        "gain",
+        "learning_rate",
+        "adam_iterations",
+    ] {
         let png = out.join("pushed_box").join(format!("{group}.png"));
-        assert_eq!(std::fs::read(&png).unwrap()[..4], [0x89, b'P', b'N', b'G'], "{}", png.display());
+        assert_eq!(
+            std::fs::read(&png).unwrap()[..4],
+            [0x89, b'P', b'N', b'G'],
+            "{}",
+            png.display()
+        );
     }
-    let rows: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
-    let mean = |variant: &str| rows.as_array().unwrap().iter().find(|r| r["variant"] == variant).unwrap()["mean_mm"].as_f64().unwrap();
+    let rows: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let mean = |variant: &str| {
+        rows.as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["variant"] == variant)
+            .unwrap()["mean_mm"]
+            .as_f64()
+            .unwrap()
+    };
     // Gain 0 leaves only physics, which cannot know the 1 cm start error: the sweep really
     // changes the tracker's settings.
-    assert!(mean("gain 0") > mean("gain 1.5") + 1.0, "gain 0 {} vs 1.5 {}", mean("gain 0"), mean("gain 1.5"));
+    assert!(
+        mean("gain 0") > mean("gain 1.5") + 1.0,
+        "gain 0 {} vs 1.5 {}",
+        mean("gain 0"),
+        mean("gain 1.5")
+    );
 }

@@ -25,18 +25,50 @@ fn without_physics() -> Config {
     config
 }
 
-fn track_with(name: &str, offset: Pose, ticks: u64, visual_forces: bool, config: Config) -> Vec<f32> {
+fn track_with(
+    name: &str,
+    offset: Pose,
+    ticks: u64,
+    visual_forces: bool,
+    config: Config,
+) -> Vec<f32> {
     let objects = scenario::object_names(name);
     let cameras = scenario::cameras(name, 320, 180);
-    let mut truth = Tracker::new(scenario::build(name, Pose::IDENTITY).unwrap(), &scenario::truth_config(name), false).unwrap();
-    let mut model = Tracker::new(scenario::build(name, offset).unwrap(), &config, visual_forces).unwrap();
+    let mut truth = Tracker::new(
+        scenario::build(name, Pose::IDENTITY).unwrap(),
+        &scenario::truth_config(name),
+        false,
+    )
+    .unwrap();
+    let mut model = Tracker::new(
+        scenario::build(name, offset).unwrap(),
+        &config,
+        visual_forces,
+    )
+    .unwrap();
     let mut errors = Vec::new();
     for tick in 0..ticks {
         truth.tick(&[]).unwrap();
-        let images = scenario::observe(&truth.scene.world, &cameras, 0.01, 1.0 + 0.02 * (tick as f32 * 0.1).sin(), tick);
-        let views: Vec<View> = cameras.iter().zip(&images).map(|(c, img)| View { camera: *c, image: img }).collect();
+        let images = scenario::observe(
+            &truth.scene.world,
+            &cameras,
+            0.01,
+            1.0 + 0.02 * (tick as f32 * 0.1).sin(),
+            tick,
+        );
+        let views: Vec<View> = cameras
+            .iter()
+            .zip(&images)
+            .map(|(c, img)| View {
+                camera: *c,
+                image: img,
+            })
+            .collect();
         model.tick(&views).unwrap();
-        let e: f32 = objects.iter().map(|o| scenario::tracking_error(&truth.scene.world, &model.scene.world, o).unwrap()).sum();
+        let e: f32 = objects
+            .iter()
+            .map(|o| scenario::tracking_error(&truth.scene.world, &model.scene.world, o).unwrap())
+            .sum();
         errors.push(e / objects.len() as f32);
     }
     errors
@@ -44,7 +76,10 @@ fn track_with(name: &str, offset: Pose, ticks: u64, visual_forces: bool, config:
 
 /// The start error of the scenario tests: 1 cm and 5 degrees.
 fn small_offset() -> Pose {
-    Pose::new(Vec3::new(0.01, 0.0, 0.0), Quat::from_rotation_z(5f32.to_radians()))
+    Pose::new(
+        Vec3::new(0.01, 0.0, 0.0),
+        Quat::from_rotation_z(5f32.to_radians()),
+    )
 }
 
 fn mean(v: &[f32]) -> f32 {
@@ -58,21 +93,42 @@ fn with_and_without(name: &str) -> (f32, f32, f32) {
     let with = track(name, offset, 135, true);
     let without = track(name, offset, 135, false);
     let (m_with, m_without) = (mean(&with), mean(&without));
-    eprintln!("{name}: mean error {:.2} mm with visual forces, {:.2} mm physics only (final {:.2} / {:.2} mm)", m_with * 1e3, m_without * 1e3, with[134] * 1e3, without[134] * 1e3);
+    eprintln!(
+        "{name}: mean error {:.2} mm with visual forces, {:.2} mm physics only (final {:.2} / {:.2} mm)",
+        m_with * 1e3,
+        m_without * 1e3,
+        with[134] * 1e3,
+        without[134] * 1e3
+    );
     (m_with, m_without, with[134])
 }
 
 #[test]
 fn an_object_started_3cm_and_20_degrees_off_is_pulled_onto_its_true_pose_within_2s() {
-    let offset = Pose::new(Vec3::new(0.03, 0.0, 0.0), Quat::from_rotation_z(20f32.to_radians()));
+    let offset = Pose::new(
+        Vec3::new(0.03, 0.0, 0.0),
+        Quat::from_rotation_z(20f32.to_radians()),
+    );
     let with = track("resting_box", offset, 60, true);
     let without = track("resting_box", offset, 60, false);
-    eprintln!("resting box from 3 cm / 20 deg: error at 0 s {:.1} mm, at 2 s {:.2} mm with visual forces, {:.1} mm physics only", with[0] * 1e3, with[59] * 1e3, without[59] * 1e3);
+    eprintln!(
+        "resting box from 3 cm / 20 deg: error at 0 s {:.1} mm, at 2 s {:.2} mm with visual forces, {:.1} mm physics only",
+        with[0] * 1e3,
+        with[59] * 1e3,
+        without[59] * 1e3
+    );
     assert!(with[0] > 0.025, "the start offset must be real");
     // Pulled on: under 6 mm and a fifth of the start error (measured 2.3 mm; without the
     // derivative term it stalls near 4.7 mm against static friction, see src/correct/mod.rs).
-    assert!(with[59] < 0.006 && with[59] < 0.2 * with[0], "not pulled on within 2 s: {} m", with[59]);
-    assert!(without[59] > 0.025, "physics alone cannot know the true pose");
+    assert!(
+        with[59] < 0.006 && with[59] < 0.2 * with[0],
+        "not pulled on within 2 s: {} m",
+        with[59]
+    );
+    assert!(
+        without[59] > 0.025,
+        "physics alone cannot know the true pose"
+    );
 }
 
 #[test]
@@ -80,7 +136,10 @@ fn a_pushed_box_is_tracked_within_5mm_and_far_better_than_physics_only() {
     // The robot pushes the box 15 cm.
     let (with, without, last) = with_and_without("pushed_box");
     assert!(with < 0.005, "mean tracking error {with} m");
-    assert!(without > 3.0 * with, "visual forces must clearly beat physics only ({without} vs {with})");
+    assert!(
+        without > 3.0 * with,
+        "visual forces must clearly beat physics only ({without} vs {with})"
+    );
     assert!(last < 0.005, "final error {last} m");
 }
 
@@ -88,7 +147,10 @@ fn a_pushed_box_is_tracked_within_5mm_and_far_better_than_physics_only() {
 fn a_pushed_t_block_is_tracked_within_5mm_mean() {
     let (with, without, last) = with_and_without("pushed_tblock");
     assert!(with < 0.005, "mean tracking error {with} m");
-    assert!(without > 2.0 * with, "visual forces must clearly beat physics only ({without} vs {with})");
+    assert!(
+        without > 2.0 * with,
+        "visual forces must clearly beat physics only ({without} vs {with})"
+    );
     assert!(last < 0.003, "final error {last} m");
 }
 
@@ -97,7 +159,10 @@ fn two_colliding_boxes_are_both_tracked_within_5mm_mean() {
     // The rod pushes one box into the other; both start off their true poses.
     let (with, without, _) = with_and_without("two_boxes");
     assert!(with < 0.005, "mean tracking error {with} m");
-    assert!(without > 2.0 * with, "visual forces must clearly beat physics only ({without} vs {with})");
+    assert!(
+        without > 2.0 * with,
+        "visual forces must clearly beat physics only ({without} vs {with})"
+    );
 }
 
 #[test]
@@ -109,10 +174,17 @@ fn a_t_block_pushed_over_is_tracked_through_its_fall_and_gravity_helps() {
     let fall = |e: &[f32]| mean(&e[30..70]);
     eprintln!(
         "tblock_pushed_over: mean {:.2} mm (during the fall {:.2}), visual forces only {:.2} mm (during the fall {:.2}); final {:.2} mm",
-        mean(&with) * 1e3, fall(&with) * 1e3, mean(&visual_only) * 1e3, fall(&visual_only) * 1e3, with[134] * 1e3
+        mean(&with) * 1e3,
+        fall(&with) * 1e3,
+        mean(&visual_only) * 1e3,
+        fall(&visual_only) * 1e3,
+        with[134] * 1e3
     );
     assert!(mean(&with) < 0.005, "mean tracking error {} m", mean(&with));
-    assert!(fall(&visual_only) > 2.0 * fall(&with), "the gravity prior must help during the fall");
+    assert!(
+        fall(&visual_only) > 2.0 * fall(&with),
+        "the gravity prior must help during the fall"
+    );
 }
 
 #[test]
@@ -122,7 +194,11 @@ fn a_rope_dragged_by_the_robot_stays_tracked() {
     let without = track("dragged_rope", offset, 135, false);
     eprintln!(
         "dragged_rope: mean {:.2} mm with visual forces, {:.2} mm physics only; max {:.2} mm; final {:.2} / {:.2} mm",
-        mean(&with) * 1e3, mean(&without) * 1e3, with.iter().copied().fold(0.0f32, f32::max) * 1e3, with[134] * 1e3, without[134] * 1e3
+        mean(&with) * 1e3,
+        mean(&without) * 1e3,
+        with.iter().copied().fold(0.0f32, f32::max) * 1e3,
+        with[134] * 1e3,
+        without[134] * 1e3
     );
     // A 1 cm thin chain: visual forces keep it within about a rope's width of the truth (measured
     // mean 8.5 mm, the same as physics alone here). Without sharing each particle's force along
@@ -137,16 +213,29 @@ fn a_box_hidden_behind_the_arm_is_recovered_after_it_reappears() {
     // The scenario really hides the box: under 10 % of it is visible in any camera from 1.0 s
     // to 2.3 s, and all of it is visible in some camera after 2.7 s.
     let cameras = scenario::cameras(name, 320, 180);
-    let mut truth = Tracker::new(scenario::build(name, Pose::IDENTITY).unwrap(), &scenario::truth_config(name), false).unwrap();
+    let mut truth = Tracker::new(
+        scenario::build(name, Pose::IDENTITY).unwrap(),
+        &scenario::truth_config(name),
+        false,
+    )
+    .unwrap();
     for tick in 1..=100 {
         truth.tick(&[]).unwrap();
         if tick % 10 == 0 {
             let seen = scenario::visible_fraction(&truth.scene.world, &cameras, "box");
             let most = seen.iter().copied().fold(0.0f32, f32::max);
             if (30..=69).contains(&tick) {
-                assert!(most < 0.1, "box visible at {:.2} s: {seen:?}", tick as f32 / 30.0);
+                assert!(
+                    most < 0.1,
+                    "box visible at {:.2} s: {seen:?}",
+                    tick as f32 / 30.0
+                );
             } else if tick >= 80 {
-                assert!(most > 0.9, "box still hidden at {:.2} s: {seen:?}", tick as f32 / 30.0);
+                assert!(
+                    most > 0.9,
+                    "box still hidden at {:.2} s: {seen:?}",
+                    tick as f32 / 30.0
+                );
             }
         }
     }
@@ -156,12 +245,24 @@ fn a_box_hidden_behind_the_arm_is_recovered_after_it_reappears() {
     let (before, hidden_end, after) = (with[29], with[71], mean(&with[105..]));
     eprintln!(
         "hidden_box: error {:.2} mm at 1.0 s, {:.2} mm when it reappears (2.4 s), {:.2} mm mean over 3.5-4.5 s (physics only {:.2} mm)",
-        before * 1e3, hidden_end * 1e3, after * 1e3, mean(&without[105..]) * 1e3
+        before * 1e3,
+        hidden_end * 1e3,
+        after * 1e3,
+        mean(&without[105..]) * 1e3
     );
     // Behind the arm the model cannot see the hidden pull and falls behind; once the box is back
     // in view, visual forces pull the model onto it again, back to the lag it had before the arm
     // came (measured: 6.7 mm at 1 s, 32 mm at 2.4 s, 6.0 mm over the last second).
-    assert!(hidden_end > 0.015, "the occlusion must cost something: {hidden_end} m");
-    assert!(after < 0.01 && after < 0.25 * hidden_end, "not recovered: {after} m");
-    assert!(mean(&without[105..]) > 3.0 * after, "physics alone cannot follow the hidden pull");
+    assert!(
+        hidden_end > 0.015,
+        "the occlusion must cost something: {hidden_end} m"
+    );
+    assert!(
+        after < 0.01 && after < 0.25 * hidden_end,
+        "not recovered: {after} m"
+    );
+    assert!(
+        mean(&without[105..]) > 3.0 * after,
+        "physics alone cannot follow the hidden pull"
+    );
 }

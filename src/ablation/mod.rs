@@ -75,15 +75,33 @@ fn prior_variants(base: &Config) -> Vec<(String, Config)> {
 
 fn variants(opts: &SweepOptions, base: &Config) -> Vec<Variant> {
     let mut v = Vec::new();
-    let at_base = |group, label: String, config: Config| Variant { group, label, resolution: opts.base, cameras: None, config };
+    let at_base = |group, label: String, config: Config| Variant {
+        group,
+        label,
+        resolution: opts.base,
+        cameras: None,
+        config,
+    };
     for (label, config) in prior_variants(base) {
         v.push(at_base("priors", label, config));
     }
     for &n in &opts.cameras {
-        v.push(Variant { group: "cameras", label: format!("{n} camera{}", if n == 1 { "" } else { "s" }), resolution: opts.base, cameras: Some(n), config: base.clone() });
+        v.push(Variant {
+            group: "cameras",
+            label: format!("{n} camera{}", if n == 1 { "" } else { "s" }),
+            resolution: opts.base,
+            cameras: Some(n),
+            config: base.clone(),
+        });
     }
     for &(w, h) in &opts.resolutions {
-        v.push(Variant { group: "resolution", label: format!("{w}x{h}"), resolution: (w, h), cameras: None, config: base.clone() });
+        v.push(Variant {
+            group: "resolution",
+            label: format!("{w}x{h}"),
+            resolution: (w, h),
+            cameras: None,
+            config: base.clone(),
+        });
     }
     for &g in &opts.gains {
         let mut c = base.clone();
@@ -98,7 +116,11 @@ fn variants(opts: &SweepOptions, base: &Config) -> Vec<Variant> {
     for &n in &opts.iterations {
         let mut c = base.clone();
         c.correct.iterations = n;
-        v.push(at_base("adam_iterations", format!("{n} iteration{}", if n == 1 { "" } else { "s" }), c));
+        v.push(at_base(
+            "adam_iterations",
+            format!("{n} iteration{}", if n == 1 { "" } else { "s" }),
+            c,
+        ));
     }
     v
 }
@@ -119,8 +141,22 @@ pub struct Row {
 /// Per-tick error averaged over objects: `(t, mm)`.
 fn mean_series(m: &replay::Metrics) -> Vec<(f64, f32)> {
     let n = m.error_series.len().max(1) as f32;
-    let Some(first) = m.error_series.values().next() else { return Vec::new() };
-    (0..first.len()).map(|k| (first[k].0, m.error_series.values().map(|s| s.get(k).map_or(0.0, |e| e.1)).sum::<f32>() / n * 1e3)).collect()
+    let Some(first) = m.error_series.values().next() else {
+        return Vec::new();
+    };
+    (0..first.len())
+        .map(|k| {
+            (
+                first[k].0,
+                m.error_series
+                    .values()
+                    .map(|s| s.get(k).map_or(0.0, |e| e.1))
+                    .sum::<f32>()
+                    / n
+                    * 1e3,
+            )
+        })
+        .collect()
 }
 
 /// Run the sweep into `out`; returns the summary rows (also in `out/summary.md` and `.json`).
@@ -143,9 +179,27 @@ pub fn run(opts: &SweepOptions, out: &Path) -> Result<Vec<Row>> {
             let (w, h) = v.resolution;
             let rec_dir = dir.join(format!("recording_{w}x{h}"));
             eprintln!("{name}: generating {w}x{h}");
-            generate::generate(name, &rec_dir, &GenerateOptions { width: w, height: h, seconds: opts.seconds, ..Default::default() })?;
+            generate::generate(
+                name,
+                &rec_dir,
+                &GenerateOptions {
+                    width: w,
+                    height: h,
+                    seconds: opts.seconds,
+                    ..Default::default()
+                },
+            )?;
             let scene = Config::load(&rec_dir.join("config.yaml"))?.scene;
-            recordings.insert(v.resolution, (rec_dir.join("recording.mcap"), Config { scene, ..base_config.clone() }));
+            recordings.insert(
+                v.resolution,
+                (
+                    rec_dir.join("recording.mcap"),
+                    Config {
+                        scene,
+                        ..base_config.clone()
+                    },
+                ),
+            );
         }
         let mut groups: BTreeMap<&str, Vec<(String, Vec<(f64, f32)>)>> = BTreeMap::new();
         // Replay is deterministic: a setting that equals one already run (the defaults appear in
@@ -153,15 +207,29 @@ pub fn run(opts: &SweepOptions, out: &Path) -> Result<Vec<Row>> {
         let mut done: BTreeMap<String, (Vec<(f64, f32)>, f64)> = BTreeMap::new();
         for v in &all {
             let (recording, scene_config) = &recordings[&v.resolution];
-            let config = Config { scene: scene_config.scene.clone(), ..v.config.clone() };
-            let cameras = v.cameras.filter(|&n| n < crate::scenario::cameras(name, 1, 1).len());
+            let config = Config {
+                scene: scene_config.scene.clone(),
+                ..v.config.clone()
+            };
+            let cameras = v
+                .cameras
+                .filter(|&n| n < crate::scenario::cameras(name, 1, 1).len());
             let key = format!("{:?} {:?} {}", v.resolution, cameras, config.to_yaml()?);
             let (series, wall_ms_per_tick) = match done.get(&key) {
                 Some(r) => r.clone(),
                 None => {
                     let run_dir = dir.join(v.group).join(v.label.replace(' ', "_"));
                     eprintln!("{name}: {} / {}", v.group, v.label);
-                    let m = replay::run(recording, &config, &run_dir, ReplayOptions { progress: true, max_cameras: cameras, ..Default::default() })?;
+                    let m = replay::run(
+                        recording,
+                        &config,
+                        &run_dir,
+                        ReplayOptions {
+                            progress: true,
+                            max_cameras: cameras,
+                            ..Default::default()
+                        },
+                    )?;
                     let r = (mean_series(&m), m.wall_ms_per_tick);
                     done.insert(key, r.clone());
                     r
@@ -170,7 +238,10 @@ pub fn run(opts: &SweepOptions, out: &Path) -> Result<Vec<Row>> {
             // Back to metres for the same statistics as replay's metrics.
             let errors: Vec<f32> = series.iter().map(|e| e.1 * 1e-3).collect();
             if errors.is_empty() {
-                bail!("{}: no ground truth to measure against", recording.display());
+                bail!(
+                    "{}: no ground truth to measure against",
+                    recording.display()
+                );
             }
             let stats = replay::stats(&errors);
             rows.push(Row {
@@ -182,13 +253,23 @@ pub fn run(opts: &SweepOptions, out: &Path) -> Result<Vec<Row>> {
                 final_mm: stats.final_mm,
                 wall_ms_per_tick,
             });
-            groups.entry(v.group).or_default().push((v.label.clone(), series));
+            groups
+                .entry(v.group)
+                .or_default()
+                .push((v.label.clone(), series));
         }
         for (group, lines) in &groups {
-            plot::error_over_time(&dir.join(format!("{group}.png")), &format!("{name}: {}", group.replace('_', " ")), lines)?;
+            plot::error_over_time(
+                &dir.join(format!("{group}.png")),
+                &format!("{name}: {}", group.replace('_', " ")),
+                lines,
+            )?;
         }
     }
-    std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&rows)?)?;
+    std::fs::write(
+        out.join("summary.json"),
+        serde_json::to_string_pretty(&rows)?,
+    )?;
     std::fs::write(out.join("summary.md"), summary_table(&rows))?;
     Ok(rows)
 }
@@ -215,8 +296,16 @@ pub fn summary_table(rows: &[Row]) -> String {
     for (group, variant) in settings {
         out += &format!("| {} | {variant} |", group.replace('_', " "));
         for s in &scenarios {
-            match rows.iter().find(|r| r.scenario == *s && r.group == group && r.variant == variant) {
-                Some(r) => out += &format!(" {:.2} / {:.2} | {:.0} |", r.mean_mm, r.p95_mm, r.wall_ms_per_tick),
+            match rows
+                .iter()
+                .find(|r| r.scenario == *s && r.group == group && r.variant == variant)
+            {
+                Some(r) => {
+                    out += &format!(
+                        " {:.2} / {:.2} | {:.0} |",
+                        r.mean_mm, r.p95_mm, r.wall_ms_per_tick
+                    )
+                }
                 None => out += " - | - |",
             }
         }
@@ -237,21 +326,54 @@ mod tests {
         assert_eq!(v.len(), 4 + 3 + 4 + 5 + 4 + 4);
         let priors: Vec<&Variant> = v.iter().filter(|v| v.group == "priors").collect();
         assert!(priors[0].config == base);
-        assert!(!priors[1].config.physics.collisions.enabled && priors[1].config.physics.gravity == base.physics.gravity);
-        assert!(!priors[2].config.physics.ground.enabled && priors[2].config.physics.gravity == Vec3::ZERO);
-        assert!(priors[3].config.physics.ground.enabled && priors[3].config.physics.gravity == Vec3::ZERO);
-        let gains: Vec<f32> = v.iter().filter(|v| v.group == "gain").map(|v| v.config.correct.gain).collect();
+        assert!(
+            !priors[1].config.physics.collisions.enabled
+                && priors[1].config.physics.gravity == base.physics.gravity
+        );
+        assert!(
+            !priors[2].config.physics.ground.enabled
+                && priors[2].config.physics.gravity == Vec3::ZERO
+        );
+        assert!(
+            priors[3].config.physics.ground.enabled
+                && priors[3].config.physics.gravity == Vec3::ZERO
+        );
+        let gains: Vec<f32> = v
+            .iter()
+            .filter(|v| v.group == "gain")
+            .map(|v| v.config.correct.gain)
+            .collect();
         assert_eq!(gains, opts.gains);
         // Everything outside the resolution group runs at the base resolution, and only the
         // camera group drops cameras.
-        assert!(v.iter().filter(|v| v.group != "resolution").all(|v| v.resolution == opts.base));
-        assert!(v.iter().filter(|v| v.cameras.is_some()).all(|v| v.group == "cameras"));
+        assert!(
+            v.iter()
+                .filter(|v| v.group != "resolution")
+                .all(|v| v.resolution == opts.base)
+        );
+        assert!(
+            v.iter()
+                .filter(|v| v.cameras.is_some())
+                .all(|v| v.group == "cameras")
+        );
     }
 
     #[test]
     fn the_summary_has_a_column_pair_per_scenario_and_a_row_per_setting() {
-        let row = |s: &str, g: &str, v: &str, m: f32| Row { scenario: s.into(), group: g.into(), variant: v.into(), mean_mm: m, p95_mm: 2.0 * m, final_mm: m, wall_ms_per_tick: 10.0 };
-        let rows = vec![row("a", "gain", "gain 1", 1.0), row("b", "gain", "gain 1", 3.0), row("a", "gain", "gain 2", 5.0)];
+        let row = |s: &str, g: &str, v: &str, m: f32| Row {
+            scenario: s.into(),
+            group: g.into(),
+            variant: v.into(),
+            mean_mm: m,
+            p95_mm: 2.0 * m,
+            final_mm: m,
+            wall_ms_per_tick: 10.0,
+        };
+        let rows = vec![
+            row("a", "gain", "gain 1", 1.0),
+            row("b", "gain", "gain 1", 3.0),
+            row("a", "gain", "gain 2", 5.0),
+        ];
         let t = summary_table(&rows);
         let lines: Vec<&str> = t.lines().collect();
         assert_eq!(lines.len(), 4);

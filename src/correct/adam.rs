@@ -13,7 +13,14 @@ pub struct Adam {
 
 impl Adam {
     pub fn new(beta1: f32, beta2: f32, epsilon: f32) -> Self {
-        Self { m: Vec::new(), v: Vec::new(), step: 0, beta1, beta2, epsilon }
+        Self {
+            m: Vec::new(),
+            v: Vec::new(),
+            step: 0,
+            beta1,
+            beta2,
+            epsilon,
+        }
     }
 
     /// Zero the moments for `n` parameters.
@@ -63,6 +70,9 @@ mod tests {
             let g = [2.0 * (p[0] - 1.0), 20.0 * (p[1] + 0.5)];
             adam.step(&mut p, &g, 0.01);
         }
-        assert!((p[0] - 1.0).abs() < 1e-2 && (p[1] + 0.5).abs() < 1e-2, "{p:?}");
+        assert!(
+            (p[0] - 1.0).abs() < 1e-2 && (p[1] + 0.5).abs() < 1e-2,
+            "{p:?}"
+        );
     }
 }

@@ -10,7 +10,9 @@
 
 pub mod adam;
 
-use crate::render::{self, Backend, Camera, GaussianCloud, PixelGrads, RenderSettings, Renderer, Roi};
+use crate::render::{
+    self, Backend, Camera, GaussianCloud, PixelGrads, RenderSettings, Renderer, Roi,
+};
 use crate::world::{NO_PARENT, ShapeKind, World};
 use adam::Adam;
 use anyhow::{Result, bail};
@@ -92,12 +94,27 @@ impl Default for CorrectConfig {
 
 impl CorrectConfig {
     pub fn validate(&self) -> Result<()> {
-        for (name, v) in [("lr_mean", self.lr_mean), ("lr_rotation", self.lr_rotation), ("lr_colour", self.lr_colour), ("lr_opacity", self.lr_opacity), ("gain", self.gain), ("damping", self.damping), ("min_displacement", self.min_displacement), ("max_image_age", self.max_image_age), ("roi_margin_px", self.roi_margin_px), ("occluder_threshold", self.occluder_threshold)] {
+        for (name, v) in [
+            ("lr_mean", self.lr_mean),
+            ("lr_rotation", self.lr_rotation),
+            ("lr_colour", self.lr_colour),
+            ("lr_opacity", self.lr_opacity),
+            ("gain", self.gain),
+            ("damping", self.damping),
+            ("min_displacement", self.min_displacement),
+            ("max_image_age", self.max_image_age),
+            ("roi_margin_px", self.roi_margin_px),
+            ("occluder_threshold", self.occluder_threshold),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 bail!("correct.{name} must be finite and >= 0, got {v}");
             }
         }
-        if !(0.0..1.0).contains(&self.beta1) || !(0.0..1.0).contains(&self.beta2) || self.epsilon.is_nan() || self.epsilon <= 0.0 {
+        if !(0.0..1.0).contains(&self.beta1)
+            || !(0.0..1.0).contains(&self.beta2)
+            || self.epsilon.is_nan()
+            || self.epsilon <= 0.0
+        {
             bail!("correct.beta1 and beta2 must be in [0, 1) and epsilon > 0");
         }
         Ok(())
@@ -143,19 +160,33 @@ impl Corrector {
         config.validate()?;
         let renderer = render::open(config.backend, render)?;
         let a = Adam::new(config.beta1, config.beta2, config.epsilon);
-        Ok(Self { config, renderer, adam: [a.clone(), a.clone(), a.clone(), a], previous: Vec::new(), backgrounds: Vec::new() })
+        Ok(Self {
+            config,
+            renderer,
+            adam: [a.clone(), a.clone(), a.clone(), a],
+            previous: Vec::new(),
+            backgrounds: Vec::new(),
+        })
     }
 
     /// Optimise the tracked objects' Gaussians against `views` and add the resulting visual
     /// forces to the world's particles (they act in the next predict step). `dt` is the tick.
     pub fn correct(&mut self, world: &mut World, views: &[View], dt: f32) -> Result<CorrectStats> {
-        let mut stats = CorrectStats { force: vec![Vec3::ZERO; world.shapes.len()], torque: vec![Vec3::ZERO; world.shapes.len()], ..Default::default() };
+        let mut stats = CorrectStats {
+            force: vec![Vec3::ZERO; world.shapes.len()],
+            torque: vec![Vec3::ZERO; world.shapes.len()],
+            ..Default::default()
+        };
         let mut cloud = GaussianCloud::from_world(world);
         // Free: Gaussians bonded to particles of dynamic objects. Robot and scene only occlude.
         let free: Vec<usize> = (0..cloud.len())
             .filter(|&i| {
                 let p = world.gaussians.parent[i];
-                p != NO_PARENT && matches!(world.shapes.kind[world.particles.shape[p as usize] as usize], ShapeKind::Rigid | ShapeKind::Rope)
+                p != NO_PARENT
+                    && matches!(
+                        world.shapes.kind[world.particles.shape[p as usize] as usize],
+                        ShapeKind::Rigid | ShapeKind::Rope
+                    )
             })
             .collect();
         if free.is_empty() || views.is_empty() {
@@ -163,14 +194,29 @@ impl Corrector {
         }
         for v in views {
             if v.image.len() != (v.camera.width * v.camera.height) as usize {
-                bail!("image of {} pixels for a {}x{} camera", v.image.len(), v.camera.width, v.camera.height);
+                bail!(
+                    "image of {} pixels for a {}x{} camera",
+                    v.image.len(),
+                    v.camera.width,
+                    v.camera.height
+                );
             }
         }
         let windows: Vec<Roi> = views
             .iter()
-            .map(|v| if self.config.use_roi { render::footprint_roi(&cloud, &free, &v.camera, self.config.roi_margin_px) } else { Roi::full(&v.camera) })
+            .map(|v| {
+                if self.config.use_roi {
+                    render::footprint_roi(&cloud, &free, &v.camera, self.config.roi_margin_px)
+                } else {
+                    Roi::full(&v.camera)
+                }
+            })
             .collect();
-        let targets: Vec<Vec<Vec3>> = views.iter().zip(&windows).map(|(v, w)| crop(v.image, v.camera.width, *w)).collect();
+        let targets: Vec<Vec<Vec3>> = views
+            .iter()
+            .zip(&windows)
+            .map(|(v, w)| crop(v.image, v.camera.width, *w))
+            .collect();
         let weights: Vec<Vec<f32>> = if self.config.occluder_threshold > 0.0 {
             let mut objects = GaussianCloud::default();
             free.iter().for_each(|&i| objects.push(cloud.get(i)));
@@ -185,7 +231,17 @@ impl Corrector {
                 let rendered = self.renderer.forward(&objects, &v.camera, *w)?;
                 let palette = rendered_palette(&rendered.colour, &rendered.alpha);
                 let background = crop(self.background(world, &v.camera)?, v.camera.width, *w);
-                let wv: Vec<f32> = target.iter().zip(&background).map(|(o, b)| if explained(*o, *b, &palette, threshold) { 1.0 } else { 0.0 }).collect();
+                let wv: Vec<f32> = target
+                    .iter()
+                    .zip(&background)
+                    .map(|(o, b)| {
+                        if explained(*o, *b, &palette, threshold) {
+                            1.0
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect();
                 stats.occluded_pixels += wv.iter().filter(|x| **x == 0.0).count();
                 weights.push(wv);
             }
@@ -196,8 +252,14 @@ impl Corrector {
         let n = free.len();
         let start: Vec<Vec3> = free.iter().map(|&i| cloud.mean[i]).collect();
         let mut means: Vec<f32> = start.iter().flat_map(|m| m.to_array()).collect();
-        let mut rots: Vec<f32> = free.iter().flat_map(|&i| cloud.rotation[i].to_array()).collect();
-        let mut cols: Vec<f32> = free.iter().flat_map(|&i| cloud.colour[i].to_array()).collect();
+        let mut rots: Vec<f32> = free
+            .iter()
+            .flat_map(|&i| cloud.rotation[i].to_array())
+            .collect();
+        let mut cols: Vec<f32> = free
+            .iter()
+            .flat_map(|&i| cloud.colour[i].to_array())
+            .collect();
         let mut ops: Vec<f32> = free.iter().map(|&i| cloud.opacity_logit[i]).collect();
         for (a, len) in self.adam.iter_mut().zip([3 * n, 4 * n, 3 * n, n]) {
             a.reset(len);
@@ -210,19 +272,42 @@ impl Corrector {
                 cloud.colour[i] = Vec3::from_slice(&cols[3 * k..]);
                 cloud.opacity_logit[i] = ops[k];
             }
-            let (mut gm, mut gr, mut gc, mut go) = (vec![0.0f32; 3 * n], vec![0.0f32; 4 * n], vec![0.0f32; 3 * n], vec![0.0f32; n]);
+            let (mut gm, mut gr, mut gc, mut go) = (
+                vec![0.0f32; 3 * n],
+                vec![0.0f32; 4 * n],
+                vec![0.0f32; 3 * n],
+                vec![0.0f32; n],
+            );
             let mut loss = 0.0f32;
-            for (((view, window), target), weight) in views.iter().zip(&windows).zip(&targets).zip(&weights) {
+            for (((view, window), target), weight) in
+                views.iter().zip(&windows).zip(&targets).zip(&weights)
+            {
                 if window.pixels() == 0 {
                     continue;
                 }
                 let out = self.renderer.forward(&cloud, &view.camera, *window)?;
                 let scale = 1.0 / (3.0 * window.pixels() as f32);
-                loss += out.colour.iter().zip(target).zip(weight).map(|((a, b), w)| w * (*a - *b).length_squared()).sum::<f32>() * scale;
+                loss += out
+                    .colour
+                    .iter()
+                    .zip(target)
+                    .zip(weight)
+                    .map(|((a, b), w)| w * (*a - *b).length_squared())
+                    .sum::<f32>()
+                    * scale;
                 if it == c.iterations {
                     continue; // last pass only measures the loss after the updates
                 }
-                let d = PixelGrads { colour: out.colour.iter().zip(target).zip(weight).map(|((a, b), w)| 2.0 * scale * w * (*a - *b)).collect(), ..Default::default() };
+                let d = PixelGrads {
+                    colour: out
+                        .colour
+                        .iter()
+                        .zip(target)
+                        .zip(weight)
+                        .map(|((a, b), w)| 2.0 * scale * w * (*a - *b))
+                        .collect(),
+                    ..Default::default()
+                };
                 let g = self.renderer.backward(&cloud, &d)?;
                 for (k, &i) in free.iter().enumerate() {
                     for j in 0..3 {
@@ -260,7 +345,9 @@ impl Corrector {
         let mut forces = vec![Vec3::ZERO; world.particles.len()];
         // A particle's force follows the mean displacement of its Gaussians, so densifying the
         // appearance (more Gaussians per particle) does not scale the forces up.
-        let centroids: Vec<Vec3> = (0..world.shapes.len() as u32).map(|s| world.shape_centroid(s)).collect();
+        let centroids: Vec<Vec3> = (0..world.shapes.len() as u32)
+            .map(|s| world.shape_centroid(s))
+            .collect();
         let mut bonded = vec![0u32; world.particles.len()];
         for &i in &free {
             bonded[world.gaussians.parent[i] as usize] += 1;
@@ -280,7 +367,8 @@ impl Corrector {
             forces[p] += f;
             let shape = world.particles.shape[p];
             stats.force[shape as usize] += f;
-            stats.torque[shape as usize] += (world.particles.position[p] - centroids[shape as usize]).cross(f);
+            stats.torque[shape as usize] +=
+                (world.particles.position[p] - centroids[shape as usize]).cross(f);
             stats.displaced += 1;
         }
         spread_over_rigid_bodies(world, &mut forces);
@@ -298,7 +386,11 @@ impl Corrector {
         let k = match self.backgrounds.iter().position(|(c, _)| c == camera) {
             Some(k) => k,
             None => {
-                let out = self.renderer.forward(&GaussianCloud::static_scene(world), camera, Roi::full(camera))?;
+                let out = self.renderer.forward(
+                    &GaussianCloud::static_scene(world),
+                    camera,
+                    Roi::full(camera),
+                )?;
                 self.backgrounds.push((*camera, out.colour));
                 self.backgrounds.len() - 1
             }
@@ -312,13 +404,23 @@ impl Corrector {
 /// tracked objects render with (`palette`, see `same_surface`). Unexplained pixels show something
 /// the model does not have in front of it.
 pub fn explained(observed: Vec3, background: Vec3, palette: &[Vec3], threshold: f32) -> bool {
-    observed.distance(background) <= threshold || palette.iter().any(|c| same_surface(observed, *c, threshold))
+    observed.distance(background) <= threshold
+        || palette
+            .iter()
+            .any(|c| same_surface(observed, *c, threshold))
 }
 
 /// The colours the Gaussians of a render cover (alpha > 0.5, un-premultiplied) with at least 1 % of
 /// those pixels (see `palette`).
 pub fn rendered_palette(colour: &[Vec3], alpha: &[f32]) -> Vec<Vec3> {
-    palette(colour.iter().zip(alpha).filter(|(_, a)| **a > 0.5).map(|(c, a)| *c / *a), 0.01)
+    palette(
+        colour
+            .iter()
+            .zip(alpha)
+            .filter(|(_, a)| **a > 0.5)
+            .map(|(c, a)| *c / *a),
+        0.01,
+    )
 }
 
 /// Whether `observed` can be the surface of colour `model` under other light: its brightness
@@ -330,7 +432,9 @@ pub fn same_surface(observed: Vec3, model: Vec3, threshold: f32) -> bool {
     if lo < DARK && lm < DARK {
         return true;
     }
-    let Some(axis) = model.try_normalize() else { return false };
+    let Some(axis) = model.try_normalize() else {
+        return false;
+    };
     let along = observed.dot(axis);
     let ratio = along / lm.max(1e-6);
     (0.4..=2.5).contains(&ratio) && (observed - along * axis).length() <= threshold
@@ -338,16 +442,23 @@ pub fn same_surface(observed: Vec3, model: Vec3, threshold: f32) -> bool {
 
 /// The colours of a set (quantised to 1/20) that make up at least `min_share` of it.
 pub fn palette(colours: impl Iterator<Item = Vec3>, min_share: f32) -> Vec<Vec3> {
-    let mut bins: std::collections::BTreeMap<[i32; 3], (Vec3, usize)> = std::collections::BTreeMap::new();
+    let mut bins: std::collections::BTreeMap<[i32; 3], (Vec3, usize)> =
+        std::collections::BTreeMap::new();
     let mut total = 0usize;
     for c in colours {
-        let key = (c.clamp(Vec3::ZERO, Vec3::ONE) * 20.0).round().as_ivec3().to_array();
+        let key = (c.clamp(Vec3::ZERO, Vec3::ONE) * 20.0)
+            .round()
+            .as_ivec3()
+            .to_array();
         let bin = bins.entry(key).or_insert((Vec3::ZERO, 0));
         bin.0 += c;
         bin.1 += 1;
         total += 1;
     }
-    bins.into_values().filter(|(_, n)| *n as f32 >= min_share * total as f32).map(|(sum, n)| sum / n as f32).collect()
+    bins.into_values()
+        .filter(|(_, n)| *n as f32 >= min_share * total as f32)
+        .map(|(sum, n)| sum / n as f32)
+        .collect()
 }
 
 /// Replace the forces on each rigid shape's particles by the distribution that gives the same
@@ -369,17 +480,37 @@ pub fn spread_over_rigid_bodies(world: &World, forces: &mut [Vec3]) {
         let mass = world.shapes.mass[s];
         let centre = world.shape_centroid(s as u32);
         let total: Vec3 = range.clone().map(|i| forces[i]).sum();
-        let torque: Vec3 = range.clone().map(|i| (p.position[i] - centre).cross(forces[i])).sum();
+        let torque: Vec3 = range
+            .clone()
+            .map(|i| (p.position[i] - centre).cross(forces[i]))
+            .sum();
         // Point-mass inertia of the current positions: the distribution below then reproduces the
         // torque exactly (sum m_i r_i x (alpha x r_i) = I alpha).
         let mut inertia = Mat3::ZERO;
         for i in range.clone() {
-            let (m, r) = (if p.inv_mass[i] > 0.0 { 1.0 / p.inv_mass[i] } else { 0.0 }, p.position[i] - centre);
-            inertia += (Mat3::from_diagonal(Vec3::splat(r.length_squared())) - Mat3::from_cols(r * r.x, r * r.y, r * r.z)) * m;
+            let (m, r) = (
+                if p.inv_mass[i] > 0.0 {
+                    1.0 / p.inv_mass[i]
+                } else {
+                    0.0
+                },
+                p.position[i] - centre,
+            );
+            inertia += (Mat3::from_diagonal(Vec3::splat(r.length_squared()))
+                - Mat3::from_cols(r * r.x, r * r.y, r * r.z))
+                * m;
         }
-        let alpha = if inertia.determinant().abs() > 1e-18 { inertia.inverse() * torque } else { Vec3::ZERO };
+        let alpha = if inertia.determinant().abs() > 1e-18 {
+            inertia.inverse() * torque
+        } else {
+            Vec3::ZERO
+        };
         for i in range {
-            let m = if p.inv_mass[i] > 0.0 { 1.0 / p.inv_mass[i] } else { 0.0 };
+            let m = if p.inv_mass[i] > 0.0 {
+                1.0 / p.inv_mass[i]
+            } else {
+                0.0
+            };
             forces[i] = m * (total / mass + alpha.cross(p.position[i] - centre));
         }
     }
@@ -435,34 +566,72 @@ mod tests {
     #[test]
     fn spreading_keeps_the_total_force_and_torque_and_loads_every_particle() {
         let mut b = WorldBuilder::new();
-        let s = b.add_rigid("box", &box_lattice(Vec3::new(0.05, 0.03, 0.02), 0.01), 0.005, 0.002, Pose::new(Vec3::new(0.3, 0.1, 0.02), glam::Quat::from_rotation_z(0.4)), Vec3::ONE);
+        let s = b.add_rigid(
+            "box",
+            &box_lattice(Vec3::new(0.05, 0.03, 0.02), 0.01),
+            0.005,
+            0.002,
+            Pose::new(Vec3::new(0.3, 0.1, 0.02), glam::Quat::from_rotation_z(0.4)),
+            Vec3::ONE,
+        );
         let w = b.build();
         let range = w.shapes.range(s);
         let mut f = vec![Vec3::ZERO; w.particles.len()];
         // A push on two top particles only.
-        let top: Vec<usize> = range.clone().filter(|&i| w.particles.rest[i].z > 0.0).take(2).collect();
+        let top: Vec<usize> = range
+            .clone()
+            .filter(|&i| w.particles.rest[i].z > 0.0)
+            .take(2)
+            .collect();
         f[top[0]] = Vec3::new(0.3, 0.1, -0.05);
         f[top[1]] = Vec3::new(0.0, -0.2, 0.0);
         let c = w.shape_centroid(s);
         let total0: Vec3 = f.iter().sum();
-        let torque0: Vec3 = range.clone().map(|i| (w.particles.position[i] - c).cross(f[i])).sum();
+        let torque0: Vec3 = range
+            .clone()
+            .map(|i| (w.particles.position[i] - c).cross(f[i]))
+            .sum();
         spread_over_rigid_bodies(&w, &mut f);
         let total1: Vec3 = f.iter().sum();
-        let torque1: Vec3 = range.clone().map(|i| (w.particles.position[i] - c).cross(f[i])).sum();
+        let torque1: Vec3 = range
+            .clone()
+            .map(|i| (w.particles.position[i] - c).cross(f[i]))
+            .sum();
         assert!((total1 - total0).length() < 1e-5, "{total1} vs {total0}");
-        assert!((torque1 - torque0).length() < 1e-3 * torque0.length().max(1e-6) + 1e-7, "{torque1} vs {torque0}");
-        assert!(range.clone().all(|i| f[i] != Vec3::ZERO), "every particle carries its share");
+        assert!(
+            (torque1 - torque0).length() < 1e-3 * torque0.length().max(1e-6) + 1e-7,
+            "{torque1} vs {torque0}"
+        );
+        assert!(
+            range.clone().all(|i| f[i] != Vec3::ZERO),
+            "every particle carries its share"
+        );
     }
 
     #[test]
     fn an_unmodelled_occluder_pushes_the_object_unless_its_pixels_are_left_out() {
         let mut b = WorldBuilder::new();
-        b.add_rigid("box", &box_lattice(Vec3::new(0.04, 0.03, 0.02), 0.01), 0.005, 0.002, Pose::from_translation(Vec3::new(0.0, 0.0, 0.02)), Vec3::new(1.0, 0.4, 0.1));
+        b.add_rigid(
+            "box",
+            &box_lattice(Vec3::new(0.04, 0.03, 0.02), 0.01),
+            0.005,
+            0.002,
+            Pose::from_translation(Vec3::new(0.0, 0.0, 0.02)),
+            Vec3::new(1.0, 0.4, 0.1),
+        );
         let world = b.build();
         let camera = Camera::look_at(80, 60, 80.0, Vec3::new(0.3, 0.0, 0.35), Vec3::ZERO);
-        let mut image = CpuRenderer::new(RenderSettings::default()).forward(&GaussianCloud::from_world(&world), &camera, Roi::full(&camera)).colour;
+        let mut image = CpuRenderer::new(RenderSettings::default())
+            .forward(
+                &GaussianCloud::from_world(&world),
+                &camera,
+                Roi::full(&camera),
+            )
+            .colour;
         // A white arm covers the left part of the box in the image; the model knows nothing of it.
-        let columns: Vec<u32> = (0..80).filter(|&x| (0..60).any(|y| image[(y * 80 + x) as usize].x > 0.5)).collect();
+        let columns: Vec<u32> = (0..80)
+            .filter(|&x| (0..60).any(|y| image[(y * 80 + x) as usize].x > 0.5))
+            .collect();
         let split = columns[columns.len() / 2];
         for y in 0..60 {
             for x in 0..split {
@@ -471,15 +640,29 @@ mod tests {
         }
         let force = |threshold: f32| {
             let mut w = world.clone();
-            let config = CorrectConfig { occluder_threshold: threshold, ..Default::default() };
+            let config = CorrectConfig {
+                occluder_threshold: threshold,
+                ..Default::default()
+            };
             let mut c = Corrector::new(config, RenderSettings::default()).unwrap();
-            let stats = c.correct(&mut w, &[View { camera, image: &image }], 1.0 / 30.0).unwrap();
+            let stats = c
+                .correct(
+                    &mut w,
+                    &[View {
+                        camera,
+                        image: &image,
+                    }],
+                    1.0 / 30.0,
+                )
+                .unwrap();
             (stats.force[0].length(), stats.occluded_pixels)
         };
         let (pushed, _) = force(0.0);
         let (kept, occluded) = force(0.35);
         assert!(occluded > 100, "the arm's pixels are found: {occluded}");
-        assert!(pushed > 1e-3 && kept < 0.2 * pushed, "force with the arm in the loss {pushed} N, without {kept} N");
+        assert!(
+            pushed > 1e-3 && kept < 0.2 * pushed,
+            "force with the arm in the loss {pushed} N, without {kept} N"
+        );
     }
 }
-

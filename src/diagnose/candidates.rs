@@ -29,7 +29,14 @@ pub enum Candidate {
     AngularDamping,
 }
 
-pub const ALL: [Candidate; 6] = [Candidate::ViscousDrag, Candidate::GroundFriction, Candidate::ConstantForce, Candidate::Spring, Candidate::MassError, Candidate::AngularDamping];
+pub const ALL: [Candidate; 6] = [
+    Candidate::ViscousDrag,
+    Candidate::GroundFriction,
+    Candidate::ConstantForce,
+    Candidate::Spring,
+    Candidate::MassError,
+    Candidate::AngularDamping,
+];
 
 impl Candidate {
     pub fn name(self) -> &'static str {
@@ -49,7 +56,11 @@ impl Candidate {
             Candidate::ViscousDrag => &[("coefficient", "N s/m")],
             Candidate::GroundFriction => &[("friction_change", "")],
             Candidate::ConstantForce => &[("force_x", "N"), ("force_y", "N")],
-            Candidate::Spring => &[("stiffness", "N/m"), ("stiffness_x_anchor_x", "N"), ("stiffness_x_anchor_y", "N")],
+            Candidate::Spring => &[
+                ("stiffness", "N/m"),
+                ("stiffness_x_anchor_x", "N"),
+                ("stiffness_x_anchor_y", "N"),
+            ],
             Candidate::MassError => &[("mass_change", "kg")],
             Candidate::AngularDamping => &[("coefficient", "1/s")],
         }
@@ -70,9 +81,17 @@ impl Candidate {
                 }
             }
             Candidate::ConstantForce => vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
-            Candidate::Spring => vec![[-s.position.x, -s.position.y, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            Candidate::Spring => vec![
+                [-s.position.x, -s.position.y, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+            ],
             Candidate::MassError => vec![[-s.acceleration.x, -s.acceleration.y, 0.0]],
-            Candidate::AngularDamping => vec![[0.0, 0.0, -s.inertia_z * s.angular_velocity.z / TORQUE_LENGTH]],
+            Candidate::AngularDamping => vec![[
+                0.0,
+                0.0,
+                -s.inertia_z * s.angular_velocity.z / TORQUE_LENGTH,
+            ]],
         }
     }
 

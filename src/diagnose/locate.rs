@@ -74,49 +74,116 @@ const QUIET_MOTION: f32 = 0.002;
 fn noise(errors: &[f32], quiet: &[bool]) -> f32 {
     let quantile = |mut v: Vec<f32>, q: f32| {
         v.sort_by(f32::total_cmp);
-        v.get(((v.len() as f32 * q) as usize).min(v.len().saturating_sub(1))).copied().unwrap_or(0.0)
+        v.get(((v.len() as f32 * q) as usize).min(v.len().saturating_sub(1)))
+            .copied()
+            .unwrap_or(0.0)
     };
-    let resting: Vec<f32> = errors.iter().zip(quiet).filter(|(_, q)| **q).map(|(e, _)| *e).collect();
-    if resting.len() >= 5 { quantile(resting, 0.5) } else { quantile(errors.to_vec(), 0.25) }
+    let resting: Vec<f32> = errors
+        .iter()
+        .zip(quiet)
+        .filter(|(_, q)| **q)
+        .map(|(e, _)| *e)
+        .collect();
+    if resting.len() >= 5 {
+        quantile(resting, 0.5)
+    } else {
+        quantile(errors.to_vec(), 0.25)
+    }
 }
 
 /// Short-horizon predictions from every other tracked state of `object` with `physics`, and the
 /// windows where they fail. `samples` are the object's residual samples (for contact phases);
 /// starts in the first `settle` seconds are skipped.
-pub fn locate(trace: &Trace, physics: &PhysicsConfig, object: ShapeId, samples: &[Sample], settle: f64) -> Result<Located> {
+pub fn locate(
+    trace: &Trace,
+    physics: &PhysicsConfig,
+    object: ShapeId,
+    samples: &[Sample],
+    settle: f64,
+) -> Result<Located> {
     let horizon = (HORIZON / trace.dt()).round().max(1.0) as usize;
     let last = trace.states.len().saturating_sub(horizon + 1);
     // Skip the first `settle` seconds: tracking is still pulling the model onto its start pose.
     let t0 = trace.states.first().map_or(0.0, |s| s.time);
-    let starts: Vec<usize> = (0..=last).step_by(2).filter(|&k| trace.states[k].time >= t0 + settle).collect();
+    let starts: Vec<usize> = (0..=last)
+        .step_by(2)
+        .filter(|&k| trace.states[k].time >= t0 + settle)
+        .collect();
     let mut predictions = trace.predict(physics, object, &starts, horizon)?;
     predictions.iter_mut().for_each(|p| p.path = Vec::new());
-    let errors: Vec<(f64, f32)> = predictions.iter().map(|p| (trace.states[p.start].time, p.error)).collect();
+    let errors: Vec<(f64, f32)> = predictions
+        .iter()
+        .map(|p| (trace.states[p.start].time, p.error))
+        .collect();
     let quiet: Vec<bool> = predictions
         .iter()
-        .map(|p| trace.centroid(object, (p.start + horizon).min(trace.states.len() - 1)).distance(trace.centroid(object, p.start)) < QUIET_MOTION)
+        .map(|p| {
+            trace
+                .centroid(object, (p.start + horizon).min(trace.states.len() - 1))
+                .distance(trace.centroid(object, p.start))
+                < QUIET_MOTION
+        })
         .collect();
     let values: Vec<f32> = errors.iter().map(|e| e.1).collect();
     // A robust 3 sigma above the noise.
     let threshold = (4.0 * noise(&values, &quiet)).max(MIN_ERROR);
-    let windows = runs(trace, object, &predictions, |p| p.error > threshold, samples);
-    Ok(Located { windows, threshold, errors, predictions })
+    let windows = runs(
+        trace,
+        object,
+        &predictions,
+        |p| p.error > threshold,
+        samples,
+    );
+    Ok(Located {
+        windows,
+        threshold,
+        errors,
+        predictions,
+    })
 }
 
 /// Of the mismatches in `located`, the windows that `physics` (the model with a named effect)
 /// explains: starts where the located model missed by more than the threshold and `physics`
 /// misses by at most two thirds as much (an effect such as a shifted centre of mass builds up
 /// over the horizon, so its short-horizon gain is modest).
-pub fn explained(trace: &Trace, located: &Located, physics: &PhysicsConfig, object: ShapeId, samples: &[Sample]) -> Result<Vec<Mismatch>> {
+pub fn explained(
+    trace: &Trace,
+    located: &Located,
+    physics: &PhysicsConfig,
+    object: ShapeId,
+    samples: &[Sample],
+) -> Result<Vec<Mismatch>> {
     let horizon = (HORIZON / trace.dt()).round().max(1.0) as usize;
-    let flagged: Vec<usize> = located.predictions.iter().filter(|p| p.error > located.threshold).map(|p| p.start).collect();
+    let flagged: Vec<usize> = located
+        .predictions
+        .iter()
+        .filter(|p| p.error > located.threshold)
+        .map(|p| p.start)
+        .collect();
     let after = trace.predict(physics, object, &flagged, horizon)?;
-    let fixed: std::collections::HashMap<usize, f32> = after.iter().map(|p| (p.start, p.error)).collect();
-    Ok(runs(trace, object, &located.predictions, |p| fixed.get(&p.start).is_some_and(|e| *e <= EXPLAINED * p.error), samples))
+    let fixed: std::collections::HashMap<usize, f32> =
+        after.iter().map(|p| (p.start, p.error)).collect();
+    Ok(runs(
+        trace,
+        object,
+        &located.predictions,
+        |p| {
+            fixed
+                .get(&p.start)
+                .is_some_and(|e| *e <= EXPLAINED * p.error)
+        },
+        samples,
+    ))
 }
 
 /// Windows of at least two consecutive predictions that `flagged` marks.
-fn runs(trace: &Trace, object: ShapeId, predictions: &[Prediction], flagged: impl Fn(&Prediction) -> bool, samples: &[Sample]) -> Vec<Mismatch> {
+fn runs(
+    trace: &Trace,
+    object: ShapeId,
+    predictions: &[Prediction],
+    flagged: impl Fn(&Prediction) -> bool,
+    samples: &[Sample],
+) -> Vec<Mismatch> {
     let horizon = (HORIZON / trace.dt()).round().max(1.0) as usize;
     let name = trace.base.shapes.name[object as usize].clone();
     let mut windows = Vec::new();
@@ -135,9 +202,19 @@ fn runs(trace: &Trace, object: ShapeId, predictions: &[Prediction], flagged: imp
     windows
 }
 
-fn window(trace: &Trace, object: ShapeId, name: &str, run: &[&Prediction], horizon: usize, samples: &[Sample]) -> Mismatch {
+fn window(
+    trace: &Trace,
+    object: ShapeId,
+    name: &str,
+    run: &[&Prediction],
+    horizon: usize,
+    samples: &[Sample],
+) -> Mismatch {
     let (first, last) = (run[0].start, run[run.len() - 1].start + horizon);
-    let (t_start, t_end) = (trace.states[first].time, trace.states[last.min(trace.states.len() - 1)].time);
+    let (t_start, t_end) = (
+        trace.states[first].time,
+        trace.states[last.min(trace.states.len() - 1)].time,
+    );
     let (mut lo, mut hi) = (Vec2::splat(f32::INFINITY), Vec2::splat(f32::NEG_INFINITY));
     let (mut foot_lo, mut foot_hi) = (lo, hi);
     // Where the object was when its prediction started to fail: the first half of each horizon.
@@ -152,21 +229,48 @@ fn window(trace: &Trace, object: ShapeId, name: &str, run: &[&Prediction], horiz
             }
         }
     }
-    let inside: Vec<&Sample> = samples.iter().filter(|s| s.t >= t_start - 1e-9 && s.t <= t_end + 1e-9).collect();
+    let inside: Vec<&Sample> = samples
+        .iter()
+        .filter(|s| s.t >= t_start - 1e-9 && s.t <= t_end + 1e-9)
+        .collect();
     let count = |f: &dyn Fn(&Sample) -> bool| inside.iter().filter(|s| f(s)).count();
     let phases = [
         ("pushed by the robot", count(&|s| s.touching_robot)),
-        ("touching another object", count(&|s| s.touching_object && !s.touching_robot)),
-        ("sliding", count(&|s| !s.touching_robot && !s.touching_object && s.velocity.truncate().length() > 0.01)),
-        ("at rest", count(&|s| !s.touching_robot && !s.touching_object && s.velocity.truncate().length() <= 0.01)),
+        (
+            "touching another object",
+            count(&|s| s.touching_object && !s.touching_robot),
+        ),
+        (
+            "sliding",
+            count(&|s| {
+                !s.touching_robot && !s.touching_object && s.velocity.truncate().length() > 0.01
+            }),
+        ),
+        (
+            "at rest",
+            count(&|s| {
+                !s.touching_robot && !s.touching_object && s.velocity.truncate().length() <= 0.01
+            }),
+        ),
     ];
-    let phase = phases.iter().max_by_key(|p| p.1).map_or("at rest", |p| p.0).to_string();
+    let phase = phases
+        .iter()
+        .max_by_key(|p| p.1)
+        .map_or("at rest", |p| p.0)
+        .to_string();
     // Tracked speed (central differences of the centre) from the window's start.
     let n = trace.states.len();
     let speed = |k: usize| {
         let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
         let dt = (trace.states[b].time - trace.states[a].time) as f32;
-        if dt > 0.0 { (trace.centroid(object, b) - trace.centroid(object, a)).truncate().length() / dt } else { 0.0 }
+        if dt > 0.0 {
+            (trace.centroid(object, b) - trace.centroid(object, a))
+                .truncate()
+                .length()
+                / dt
+        } else {
+            0.0
+        }
     };
     let gain = (first..=last.min(n - 1)).map(speed).fold(0.0, f32::max) - speed(first);
     let sped_up = gain > SPEED_UP && count(&|s| s.touching_robot) == 0;
@@ -197,17 +301,32 @@ mod tests {
     #[test]
     fn a_window_where_something_unmodelled_sets_the_object_moving_is_flagged_as_sped_up() {
         let mut b = WorldBuilder::new();
-        let shape = b.add_rigid("box", &box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01), 0.005, 0.005, Pose::from_translation(Vec3::new(0.0, 0.0, 0.0151)), Vec3::ONE);
+        let shape = b.add_rigid(
+            "box",
+            &box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01),
+            0.005,
+            0.005,
+            Pose::from_translation(Vec3::new(0.0, 0.0, 0.0151)),
+            Vec3::ONE,
+        );
         let mut world = b.build();
         // A slippery table: it is still sliding, slowing, a second after the kick.
         let mut physics = PhysicsConfig::default();
         physics.ground.static_friction = 0.04;
         physics.ground.kinetic_friction = 0.03;
-        let mut trace = Trace { base: world.clone(), physics: physics.clone(), robot: None, states: vec![crate::diagnose::trace::State::of(&world)] };
+        let mut trace = Trace {
+            base: world.clone(),
+            physics: physics.clone(),
+            robot: None,
+            states: vec![crate::diagnose::trace::State::of(&world)],
+        };
         let mut solver = crate::physics::Solver::new(physics.clone(), &world).unwrap();
         for k in 0..70 {
             if k == 40 {
-                world.shapes.range(shape).for_each(|i| world.particles.velocity[i] = Vec3::new(0.3, 0.0, 0.0));
+                world
+                    .shapes
+                    .range(shape)
+                    .for_each(|i| world.particles.velocity[i] = Vec3::new(0.3, 0.0, 0.0));
             }
             solver.step(&mut world).unwrap();
             trace.states.push(crate::diagnose::trace::State::of(&world));
@@ -215,7 +334,15 @@ mod tests {
         let horizon = (HORIZON / trace.dt()).round() as usize;
         let flag = |starts: Vec<usize>| {
             let p = trace.predict(&physics, shape, &starts, horizon).unwrap();
-            window(&trace, shape, "box", &p.iter().collect::<Vec<_>>(), horizon, &[]).sped_up
+            window(
+                &trace,
+                shape,
+                "box",
+                &p.iter().collect::<Vec<_>>(),
+                horizon,
+                &[],
+            )
+            .sped_up
         };
         assert!(flag((34..=40).step_by(2).collect()));
         let sliding = trace.centroid(shape, 62).x - trace.centroid(shape, 56).x;

@@ -129,12 +129,22 @@ mod tests {
 /// Read `residuals.csv` (as written by replay).
 pub fn read_residuals(path: &std::path::Path) -> anyhow::Result<Vec<Sample>> {
     use anyhow::Context;
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let mut lines = text.lines();
     if lines.next() != Some(CSV_HEADER) {
-        anyhow::bail!("{} is not a residuals file (header differs)", path.display());
+        anyhow::bail!(
+            "{} is not a residuals file (header differs)",
+            path.display()
+        );
     }
-    lines.enumerate().map(|(n, l)| Sample::from_csv_row(l).with_context(|| format!("{}:{}: malformed row", path.display(), n + 2))).collect()
+    lines
+        .enumerate()
+        .map(|(n, l)| {
+            Sample::from_csv_row(l)
+                .with_context(|| format!("{}:{}: malformed row", path.display(), n + 2))
+        })
+        .collect()
 }
 
 pub use pipeline::{DiagnoseOptions, diagnose};

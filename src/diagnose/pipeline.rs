@@ -28,7 +28,13 @@ pub struct DiagnoseOptions {
 
 impl Default for DiagnoseOptions {
     fn default() -> Self {
-        Self { horizon: 1.0, train_fraction: 0.7, min_gain: 0.3, settle: 0.5, progress: true }
+        Self {
+            horizon: 1.0,
+            train_fraction: 0.7,
+            min_gain: 0.3,
+            settle: 0.5,
+            progress: true,
+        }
     }
 }
 
@@ -39,7 +45,12 @@ const ACTIVE_MOTION: f32 = 0.005;
 
 /// Replay `recording` with `config`, find what physics the model misses and write `out/report.md`,
 /// `out/report.json`, `out/model.yaml`, plots and the replays (`out/before`, `out/after`).
-pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOptions) -> Result<Report> {
+pub fn diagnose(
+    recording: &Path,
+    config: &Config,
+    out: &Path,
+    opts: DiagnoseOptions,
+) -> Result<Report> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let say = |s: String| {
         if opts.progress {
@@ -47,7 +58,16 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
         }
     };
     say("replaying with the current model".into());
-    let before = replay::run(recording, config, &out.join("before"), ReplayOptions { progress: opts.progress, capture: true, ..Default::default() })?;
+    let before = replay::run(
+        recording,
+        config,
+        &out.join("before"),
+        ReplayOptions {
+            progress: opts.progress,
+            capture: true,
+            ..Default::default()
+        },
+    )?;
     let trace = before.trace.as_ref().context("replay kept no trace")?;
     let samples = read_residuals(&out.join("before").join("residuals.csv"))?;
     let horizon = (opts.horizon / trace.dt()).round().max(1.0) as usize;
@@ -60,7 +80,11 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
     let mut objects: Vec<(ShapeId, String, Vec<Sample>, Located)> = Vec::new();
     for &shape in &shapes {
         let name = trace.base.shapes.name[shape as usize].clone();
-        let mine: Vec<Sample> = samples.iter().filter(|s| s.object == name).cloned().collect();
+        let mine: Vec<Sample> = samples
+            .iter()
+            .filter(|s| s.object == name)
+            .cloned()
+            .collect();
         say(format!("{name}: locating mismatches"));
         let located = locate::locate(trace, &trace.physics, shape, &mine, opts.settle)?;
         objects.push((shape, name, mine, located));
@@ -70,23 +94,41 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
         // Fitting windows end before the cut; held-out ones start after it; both only where the
         // object moves.
         let last = trace.states.len().saturating_sub(horizon + 1);
-        let all: Vec<usize> = (0..=last).step_by(WINDOW_STRIDE).filter(|&k| trace.states[k].time >= t_first + opts.settle).collect();
+        let all: Vec<usize> = (0..=last)
+            .step_by(WINDOW_STRIDE)
+            .filter(|&k| trace.states[k].time >= t_first + opts.settle)
+            .collect();
         let base = trace.predict(&trace.physics, shape, &all, horizon)?;
         let time = |k: usize| trace.states[k].time;
         // Windows where the robot touches the object are left out: how a push plays out open
         // loop hangs on the recorded robot motion's timing to a few milliseconds, a mismatch of
         // its own that no effect of the object explains (the control scenario's pushes miss by
         // tens of mm with the true physics).
-        let pushed: Vec<f64> = mine.iter().filter(|s| s.touching_robot).map(|s| s.t).collect();
+        let pushed: Vec<f64> = mine
+            .iter()
+            .filter(|s| s.touching_robot)
+            .map(|s| s.t)
+            .collect();
         let active = |p: &Prediction| {
             let c0 = trace.centroid(shape, p.start);
-            let tracked = (p.start..=p.start + horizon).map(|k| trace.centroid(shape, k).distance(c0)).fold(0.0, f32::max);
+            let tracked = (p.start..=p.start + horizon)
+                .map(|k| trace.centroid(shape, k).distance(c0))
+                .fold(0.0, f32::max);
             let predicted = p.path.iter().map(|q| q.distance(c0)).fold(0.0, f32::max);
             let (t0, t1) = (time(p.start), time(p.start + horizon));
-            tracked.max(predicted) > ACTIVE_MOTION && !pushed.iter().any(|t| *t >= t0 - 1e-9 && *t <= t1 + 1e-9)
+            tracked.max(predicted) > ACTIVE_MOTION
+                && !pushed.iter().any(|t| *t >= t0 - 1e-9 && *t <= t1 + 1e-9)
         };
-        let base_train: Vec<Prediction> = base.iter().filter(|p| time(p.start + horizon) <= cut + 1e-9 && active(p)).cloned().collect();
-        let base_heldout: Vec<Prediction> = base.iter().filter(|p| time(p.start) >= cut - 1e-9 && active(p)).cloned().collect();
+        let base_train: Vec<Prediction> = base
+            .iter()
+            .filter(|p| time(p.start + horizon) <= cut + 1e-9 && active(p))
+            .cloned()
+            .collect();
+        let base_heldout: Vec<Prediction> = base
+            .iter()
+            .filter(|p| time(p.start) >= cut - 1e-9 && active(p))
+            .cloned()
+            .collect();
         let train: Vec<usize> = base_train.iter().map(|p| p.start).collect();
         let heldout: Vec<usize> = base_heldout.iter().map(|p| p.start).collect();
         let (force_direction, anchor) = refit::directions(trace, shape, &base_train);
@@ -106,7 +148,16 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
         if !train.is_empty() && !heldout.is_empty() {
             for family in refit::ALL {
                 say(format!("{name}: fitting {} open loop", family.name()));
-                if let Some(f) = refit::fit(trace, &setting, family, &train, &heldout, horizon, &base_train, &base_heldout)? {
+                if let Some(f) = refit::fit(
+                    trace,
+                    &setting,
+                    family,
+                    &train,
+                    &heldout,
+                    horizon,
+                    &base_train,
+                    &base_heldout,
+                )? {
                     fits.push(f);
                 }
             }
@@ -117,14 +168,25 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
         // object's own or another's.
         let mut chosen = None;
         let mut explained = Vec::new();
-        for f in parsimonious(fits.iter().filter(|f| f.train_gain() >= opts.min_gain && f.heldout_gain() >= opts.min_gain).collect()) {
-            let Some(effect) = f.effect_term.clone() else { continue };
+        for f in parsimonious(
+            fits.iter()
+                .filter(|f| f.train_gain() >= opts.min_gain && f.heldout_gain() >= opts.min_gain)
+                .collect(),
+        ) {
+            let Some(effect) = f.effect_term.clone() else {
+                continue;
+            };
             let mut physics = trace.physics.clone();
             physics.effects.push(effect);
             explained = locate::explained(trace, &located, &physics, shape, &mine)?;
             let explains_another = || -> Result<bool> {
-                for (other, _, theirs, their_located) in objects.iter().filter(|o| o.0 != shape && !o.3.windows.is_empty()) {
-                    if !locate::explained(trace, their_located, &physics, *other, theirs)?.is_empty() {
+                for (other, _, theirs, their_located) in objects
+                    .iter()
+                    .filter(|o| o.0 != shape && !o.3.windows.is_empty())
+                {
+                    if !locate::explained(trace, their_located, &physics, *other, theirs)?
+                        .is_empty()
+                    {
                         return Ok(true);
                     }
                 }
@@ -135,35 +197,89 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
                 break;
             }
         }
-        let regression = select::select(&mine, &candidates::ALL, SelectOptions { train_fraction: opts.train_fraction, ..Default::default() });
-        studies.push(Study { shape, name, samples: mine, located, explained, explained_by: None, train, heldout, setting, fits, chosen, refined_from: None, regression, base_heldout });
+        let regression = select::select(
+            &mine,
+            &candidates::ALL,
+            SelectOptions {
+                train_fraction: opts.train_fraction,
+                ..Default::default()
+            },
+        );
+        studies.push(Study {
+            shape,
+            name,
+            samples: mine,
+            located,
+            explained,
+            explained_by: None,
+            train,
+            heldout,
+            setting,
+            fits,
+            chosen,
+            refined_from: None,
+            regression,
+            base_heldout,
+        });
     }
     one_mass_change(&mut studies);
-    let mut effects: Vec<_> = studies.iter().filter_map(|s| s.chosen.as_ref().and_then(|f| f.effect_term.clone())).collect();
+    let mut effects: Vec<_> = studies
+        .iter()
+        .filter_map(|s| s.chosen.as_ref().and_then(|f| f.effect_term.clone()))
+        .collect();
     // Model: the named terms' parameters refined on a replay tracked with them. Tracking with a
     // model that lacks the effect lags what the effect does (the visual forces pull the object
     // after it), and a parameter fitted to that lag inherits it; with the effect in the model the
     // tracked motion is closer to the truth.
     if !effects.is_empty() {
-        say(format!("replaying with the named effect(s) to refine their parameters ({})", effects.len()));
-        let named = ModelFile { source: String::new(), effects: effects.clone() };
-        let run = replay::run(recording, &named.apply(config), &out.join("named"), ReplayOptions { progress: opts.progress, capture: true, ..Default::default() })?;
+        say(format!(
+            "replaying with the named effect(s) to refine their parameters ({})",
+            effects.len()
+        ));
+        let named = ModelFile {
+            source: String::new(),
+            effects: effects.clone(),
+        };
+        let run = replay::run(
+            recording,
+            &named.apply(config),
+            &out.join("named"),
+            ReplayOptions {
+                progress: opts.progress,
+                capture: true,
+                ..Default::default()
+            },
+        )?;
         let retraced = run.trace.as_ref().context("replay kept no trace")?;
         effects.clear();
         for study in studies.iter_mut() {
-            let Some(named) = study.chosen.clone() else { continue };
+            let Some(named) = study.chosen.clone() else {
+                continue;
+            };
             let Some(family) = named.family else { continue };
             say(format!("{}: refining {}", study.name, family.name()));
-            let base_train = retraced.predict(&study.setting.base, study.shape, &study.train, horizon)?;
-            let base_heldout = retraced.predict(&study.setting.base, study.shape, &study.heldout, horizon)?;
+            let base_train =
+                retraced.predict(&study.setting.base, study.shape, &study.train, horizon)?;
+            let base_heldout =
+                retraced.predict(&study.setting.base, study.shape, &study.heldout, horizon)?;
             let (direction, anchor) = refit::directions(retraced, study.shape, &base_train);
             let setting = Setting {
                 force_direction: direction.or(study.setting.force_direction),
                 anchor: anchor.or(study.setting.anchor),
-                region: refit::footprint(retraced, study.shape, &study.train, horizon).or(study.setting.region),
+                region: refit::footprint(retraced, study.shape, &study.train, horizon)
+                    .or(study.setting.region),
                 ..study.setting.clone()
             };
-            let refined = refit::fit(retraced, &setting, family, &study.train, &study.heldout, horizon, &base_train, &base_heldout)?;
+            let refined = refit::fit(
+                retraced,
+                &setting,
+                family,
+                &study.train,
+                &study.heldout,
+                horizon,
+                &base_train,
+                &base_heldout,
+            )?;
             let kept = match refined {
                 Some(f) if f.effect_term.is_some() => {
                     study.refined_from = Some(named);
@@ -175,19 +291,39 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
             study.chosen = Some(kept);
         }
     }
-    let model = ModelFile { source: format!("pegs diagnose {}", recording.display()), effects };
+    let model = ModelFile {
+        source: format!("pegs diagnose {}", recording.display()),
+        effects,
+    };
     let model_path = out.join("model.yaml");
     model.save(&model_path)?;
     // An object with no effect of its own may still have missed because of another's: a box
     // struck by one heavier than modelled slides further than predicted.
-    let named: Vec<String> = studies.iter().filter_map(|s| s.chosen.as_ref().map(|f| format!("{} of {}", f.effect, s.name))).collect();
-    for study in studies.iter_mut().filter(|s| s.chosen.is_none() && !s.located.windows.is_empty()) {
+    let named: Vec<String> = studies
+        .iter()
+        .filter_map(|s| {
+            s.chosen
+                .as_ref()
+                .map(|f| format!("{} of {}", f.effect, s.name))
+        })
+        .collect();
+    for study in studies
+        .iter_mut()
+        .filter(|s| s.chosen.is_none() && !s.located.windows.is_empty())
+    {
         let mut physics = trace.physics.clone();
-        physics.effects.extend(model.effects.iter().filter(|e| e.object() != Some(study.name.as_str())).cloned());
+        physics.effects.extend(
+            model
+                .effects
+                .iter()
+                .filter(|e| e.object() != Some(study.name.as_str()))
+                .cloned(),
+        );
         if physics.effects.is_empty() {
             continue;
         }
-        study.explained = locate::explained(trace, &study.located, &physics, study.shape, &study.samples)?;
+        study.explained =
+            locate::explained(trace, &study.located, &physics, study.shape, &study.samples)?;
         if !study.explained.is_empty() {
             study.explained_by = Some(named.join(", "));
         }
@@ -196,8 +332,20 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
     let after = if model.effects.is_empty() {
         None
     } else {
-        say(format!("replaying with the augmented model ({} effect(s))", model.effects.len()));
-        Some(replay::run(recording, &model.apply(config), &out.join("after"), ReplayOptions { progress: opts.progress, capture: true, ..Default::default() })?)
+        say(format!(
+            "replaying with the augmented model ({} effect(s))",
+            model.effects.len()
+        ));
+        Some(replay::run(
+            recording,
+            &model.apply(config),
+            &out.join("after"),
+            ReplayOptions {
+                progress: opts.progress,
+                capture: true,
+                ..Default::default()
+            },
+        )?)
     };
     let after_samples = match &after {
         Some(_) => read_residuals(&out.join("after").join("residuals.csv"))?,
@@ -205,12 +353,22 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
     };
     let mut objects = Vec::new();
     for study in studies {
-        let outcome_before = outcome(&study.base_heldout, &study.samples, &before, &study.name, cut);
+        let outcome_before = outcome(
+            &study.base_heldout,
+            &study.samples,
+            &before,
+            &study.name,
+            cut,
+        );
         let (outcome_after, after_heldout) = match &after {
             Some(run) => {
                 let t = run.trace.as_ref().context("replay kept no trace")?;
                 let p = t.predict(&t.physics, study.shape, &study.heldout, horizon)?;
-                let mine: Vec<Sample> = after_samples.iter().filter(|s| s.object == study.name).cloned().collect();
+                let mine: Vec<Sample> = after_samples
+                    .iter()
+                    .filter(|s| s.object == study.name)
+                    .cloned()
+                    .collect();
                 (outcome(&p, &mine, run, &study.name, cut), p)
             }
             None => (outcome_before.clone(), study.base_heldout.clone()),
@@ -219,15 +377,43 @@ pub fn diagnose(recording: &Path, config: &Config, out: &Path, opts: DiagnoseOpt
         for (t, e) in &study.located.errors {
             csv += &format!("{t:.4},{:.3}\n", e * 1e3);
         }
-        std::fs::write(out.join(format!("{}_short_horizon_errors.csv", study.name)), csv)?;
+        std::fs::write(
+            out.join(format!("{}_short_horizon_errors.csv", study.name)),
+            csv,
+        )?;
         let plot = |kind: &str| out.join(format!("{}_{kind}.png", study.name));
         plots::residual_over_time(&plot("residual"), &study.samples, &study.located, cut)?;
-        plots::residual_vs_feature(&plot("feature"), &study.samples, study.chosen.as_ref().and_then(|f| f.family), &study.setting)?;
-        plots::paths(&plot("paths"), trace, study.shape, cut, &study.base_heldout, &after_heldout)?;
-        objects.push(object_report(study, outcome_before, outcome_after, cut, opts.train_fraction));
+        plots::residual_vs_feature(
+            &plot("feature"),
+            &study.samples,
+            study.chosen.as_ref().and_then(|f| f.family),
+            &study.setting,
+        )?;
+        plots::paths(
+            &plot("paths"),
+            trace,
+            study.shape,
+            cut,
+            &study.base_heldout,
+            &after_heldout,
+        )?;
+        objects.push(object_report(
+            study,
+            outcome_before,
+            outcome_after,
+            cut,
+            opts.train_fraction,
+        ));
     }
-    let report = Report::new(recording.display().to_string(), model_path.display().to_string(), objects);
-    std::fs::write(out.join("report.json"), serde_json::to_string_pretty(&report)?)?;
+    let report = Report::new(
+        recording.display().to_string(),
+        model_path.display().to_string(),
+        objects,
+    );
+    std::fs::write(
+        out.join("report.json"),
+        serde_json::to_string_pretty(&report)?,
+    )?;
     std::fs::write(out.join("report.md"), report.markdown())?;
     Ok(report)
 }
@@ -247,9 +433,19 @@ fn one_mass_change(studies: &mut [Study]) {
 /// Of the named fits (one per object), the indices of the mass changes to drop: all but the one
 /// with the best held-out gain.
 fn mass_changes_to_drop(chosen: &[Option<&Fit>]) -> Vec<usize> {
-    let mass: Vec<(usize, f64)> = chosen.iter().enumerate().filter_map(|(i, f)| f.filter(|f| f.family == Some(Family::MassScale)).map(|f| (i, f.heldout_gain()))).collect();
+    let mass: Vec<(usize, f64)> = chosen
+        .iter()
+        .enumerate()
+        .filter_map(|(i, f)| {
+            f.filter(|f| f.family == Some(Family::MassScale))
+                .map(|f| (i, f.heldout_gain()))
+        })
+        .collect();
     let best = mass.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|b| b.0);
-    mass.iter().map(|m| m.0).filter(|&i| Some(i) != best).collect()
+    mass.iter()
+        .map(|m| m.0)
+        .filter(|&i| Some(i) != best)
+        .collect()
 }
 
 /// `passing` reordered by the one-standard-error rule over all windows (fitting and held-out; a
@@ -257,19 +453,46 @@ fn mass_changes_to_drop(chosen: &[Option<&Fit>]) -> Vec<usize> {
 /// (lowest mean squared error) and the fits within one standard error of it (paired over
 /// windows) come first, simplest first; then the rest, best first.
 fn parsimonious(passing: Vec<&Fit>) -> Vec<&Fit> {
-    let windows = |f: &Fit| f.train_errors.iter().chain(&f.heldout_errors).copied().collect::<Vec<f64>>();
+    let windows = |f: &Fit| {
+        f.train_errors
+            .iter()
+            .chain(&f.heldout_errors)
+            .copied()
+            .collect::<Vec<f64>>()
+    };
     let total = |f: &Fit| windows(f).iter().sum::<f64>();
     let mut passing = passing;
     passing.sort_by(|a, b| total(a).total_cmp(&total(b)));
-    let Some(best) = passing.first().copied() else { return passing };
+    let Some(best) = passing.first().copied() else {
+        return passing;
+    };
     let close = |f: &Fit| {
-        let d: Vec<f64> = windows(f).iter().zip(&windows(best)).map(|(a, b)| a - b).collect();
+        let d: Vec<f64> = windows(f)
+            .iter()
+            .zip(&windows(best))
+            .map(|(a, b)| a - b)
+            .collect();
         let n = d.len().max(1) as f64;
         let mean = d.iter().sum::<f64>() / n;
-        let se = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt() / n.sqrt();
+        let se = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt()
+            / n.sqrt();
         mean <= se
     };
-    let mut order: Vec<(usize, usize, &Fit)> = passing.iter().enumerate().map(|(i, f)| (if close(f) { f.family.map_or(usize::MAX, |x| x.complexity()) } else { usize::MAX }, i, *f)).collect();
+    let mut order: Vec<(usize, usize, &Fit)> = passing
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            (
+                if close(f) {
+                    f.family.map_or(usize::MAX, |x| x.complexity())
+                } else {
+                    usize::MAX
+                },
+                i,
+                *f,
+            )
+        })
+        .collect();
     order.sort_by_key(|(complexity, i, _)| (*complexity, *i));
     order.into_iter().map(|(_, _, f)| f).collect()
 }
@@ -299,14 +522,28 @@ struct Study {
 
 /// Held-out metrics of one replay: open-loop error of `predictions`, mean corrective force of the
 /// object's samples after `cut`, tracking error after `cut` if there is ground truth.
-fn outcome(predictions: &[Prediction], samples: &[Sample], run: &Metrics, object: &str, cut: f64) -> Outcome {
+fn outcome(
+    predictions: &[Prediction],
+    samples: &[Sample],
+    run: &Metrics,
+    object: &str,
+    cut: f64,
+) -> Outcome {
     let held: Vec<&Sample> = samples.iter().filter(|s| s.t >= cut).collect();
-    let tracking: Option<Vec<f32>> = run.error_series.get(object).map(|s| s.iter().filter(|e| e.0 >= cut).map(|e| e.1).collect());
+    let tracking: Option<Vec<f32>> = run
+        .error_series
+        .get(object)
+        .map(|s| s.iter().filter(|e| e.0 >= cut).map(|e| e.1).collect());
     Outcome {
-        open_loop_error_mm: predictions.iter().map(|p| p.error).sum::<f32>() / predictions.len().max(1) as f32 * 1e3,
+        open_loop_error_mm: predictions.iter().map(|p| p.error).sum::<f32>()
+            / predictions.len().max(1) as f32
+            * 1e3,
         open_loop_windows: predictions.len(),
-        corrective_effort_n: held.iter().map(|s| s.force.length()).sum::<f32>() / held.len().max(1) as f32,
-        tracking_error_mm: tracking.filter(|e| !e.is_empty()).map(|e| e.iter().sum::<f32>() / e.len() as f32 * 1e3),
+        corrective_effort_n: held.iter().map(|s| s.force.length()).sum::<f32>()
+            / held.len().max(1) as f32,
+        tracking_error_mm: tracking
+            .filter(|e| !e.is_empty())
+            .map(|e| e.iter().sum::<f32>() / e.len() as f32 * 1e3),
     }
 }
 
@@ -326,18 +563,38 @@ fn regression_counterpart(family: Family) -> Option<candidates::Candidate> {
     }
 }
 
-fn object_report(study: Study, before: Outcome, after: Outcome, cut: f64, train_fraction: f64) -> ObjectReport {
+fn object_report(
+    study: Study,
+    before: Outcome,
+    after: Outcome,
+    cut: f64,
+    train_fraction: f64,
+) -> ObjectReport {
     let mut parameters = Vec::new();
     let mut residual_explained_fraction = None;
     if let Some(f) = &study.chosen {
-        parameters.push(Parameter { name: f.parameter.clone(), value: f.value, low: Some(f.low), high: Some(f.high), unit: f.unit.clone() });
+        parameters.push(Parameter {
+            name: f.parameter.clone(),
+            value: f.value,
+            low: Some(f.low),
+            high: Some(f.high),
+            unit: f.unit.clone(),
+        });
         let s = &study.setting;
-        let fixed = |name: &str, value: f32, unit: &str| Parameter { name: name.into(), value, low: None, high: None, unit: unit.into() };
+        let fixed = |name: &str, value: f32, unit: &str| Parameter {
+            name: name.into(),
+            value,
+            low: None,
+            high: None,
+            unit: unit.into(),
+        };
         match f.family {
             Some(Family::ConstantForce) => {
                 // The fitted direction (refined from the setting's).
                 let fitted = match &f.effect_term {
-                    Some(crate::physics::Effect::ConstantForce { force, .. }) => Some(force.normalize_or_zero()),
+                    Some(crate::physics::Effect::ConstantForce { force, .. }) => {
+                        Some(force.normalize_or_zero())
+                    }
                     _ => s.force_direction,
                 };
                 if let Some(d) = fitted {
@@ -356,17 +613,37 @@ fn object_report(study: Study, before: Outcome, after: Outcome, cut: f64, train_
             }
             Some(Family::FrictionPatch) => {
                 // The placed patch (see `refit::place_patch`).
-                if let Some(crate::physics::Effect::FrictionPatch { center: c, half_size: h, .. }) = &f.effect_term {
-                    for (n, v) in [("center_x", c.x), ("center_y", c.y), ("half_size_x", h.x), ("half_size_y", h.y)] {
+                if let Some(crate::physics::Effect::FrictionPatch {
+                    center: c,
+                    half_size: h,
+                    ..
+                }) = &f.effect_term
+                {
+                    for (n, v) in [
+                        ("center_x", c.x),
+                        ("center_y", c.y),
+                        ("half_size_x", h.x),
+                        ("half_size_y", h.y),
+                    ] {
                         parameters.push(fixed(n, v, "m"));
                     }
                 }
             }
-            Some(Family::CenterOfMass(axis)) => parameters.push(fixed("body_axis", axis as f32, "0 = x, 1 = y")),
+            Some(Family::CenterOfMass(axis)) => {
+                parameters.push(fixed("body_axis", axis as f32, "0 = x, 1 = y"))
+            }
             _ => {}
         }
         if let Some(c) = f.family.and_then(regression_counterpart) {
-            let single = select::select(&study.samples, &[c], SelectOptions { train_fraction, min_gain: f64::NEG_INFINITY, min_t: 0.0 });
+            let single = select::select(
+                &study.samples,
+                &[c],
+                SelectOptions {
+                    train_fraction,
+                    min_gain: f64::NEG_INFINITY,
+                    min_t: 0.0,
+                },
+            );
             residual_explained_fraction = single.found.first().map(|x| x.explained_fraction);
         }
     }
@@ -374,13 +651,31 @@ fn object_report(study: Study, before: Outcome, after: Outcome, cut: f64, train_
         object: study.name,
         locate_threshold_mm: study.located.threshold * 1e3,
         // Deviations no effect explains are listed apart: they are not missing physics.
-        unexplained: study.located.windows.iter().filter(|w| !study.explained.iter().any(|e| e.t_start < w.t_end && w.t_start < e.t_end)).cloned().collect(),
+        unexplained: study
+            .located
+            .windows
+            .iter()
+            .filter(|w| {
+                !study
+                    .explained
+                    .iter()
+                    .any(|e| e.t_start < w.t_end && w.t_start < e.t_end)
+            })
+            .cloned()
+            .collect(),
         mismatch: study.explained,
         explained_by: study.explained_by,
-        effect: study.chosen.as_ref().map_or("none".into(), |f| f.effect.clone()),
+        effect: study
+            .chosen
+            .as_ref()
+            .map_or("none".into(), |f| f.effect.clone()),
         parameters,
         // How much the effect explains is judged where it was named.
-        explained_fraction: study.refined_from.as_ref().or(study.chosen.as_ref()).map_or(0.0, |f| f.heldout_gain()),
+        explained_fraction: study
+            .refined_from
+            .as_ref()
+            .or(study.chosen.as_ref())
+            .map_or(0.0, |f| f.heldout_gain()),
         named_fit: study.refined_from,
         residual_explained_fraction,
         heldout_from: cut,
@@ -423,12 +718,16 @@ mod tests {
         let light = fit(Family::MassScale, &[0.5]);
         let drag = fit(Family::ViscousDrag, &[0.05]);
         // Held-out gains 0.9 and 0.5: the lighter-box reading is dropped; other effects stay.
-        assert_eq!(mass_changes_to_drop(&[Some(&light), None, Some(&heavy), Some(&drag)]), vec![0]);
+        assert_eq!(
+            mass_changes_to_drop(&[Some(&light), None, Some(&heavy), Some(&drag)]),
+            vec![0]
+        );
         assert!(mass_changes_to_drop(&[Some(&heavy), Some(&drag)]).is_empty());
     }
 
     #[test]
-    fn the_simpler_of_two_indistinguishable_fits_comes_first_and_a_clearly_better_one_stays_first() {
+    fn the_simpler_of_two_indistinguishable_fits_comes_first_and_a_clearly_better_one_stays_first()
+    {
         // The spring is slightly better on average but not window by window: the constant force
         // (fewer quantities from the data) is named.
         let spring = fit(Family::Spring, &[0.10, 0.30, 0.20, 0.05, 0.40]);

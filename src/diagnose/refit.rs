@@ -63,7 +63,11 @@ impl Family {
     /// cannot tell apart, the simpler is named.
     pub fn complexity(self) -> usize {
         match self {
-            Family::ViscousDrag | Family::GroundFriction | Family::MassScale | Family::AngularDamping | Family::Restitution => 1,
+            Family::ViscousDrag
+            | Family::GroundFriction
+            | Family::MassScale
+            | Family::AngularDamping
+            | Family::Restitution => 1,
             Family::ConstantForce | Family::CenterOfMass(_) => 2,
             Family::Spring => 3,
             Family::FrictionPatch => 5,
@@ -113,13 +117,16 @@ impl Setting {
         match family {
             Family::ViscousDrag => Some((0.03 * m, 30.0 * m, true)),
             Family::GroundFriction => Some((0.0, 0.6, false)),
-            Family::ConstantForce => self.force_direction.map(|_| (0.002 * m * g, 0.3 * m * g, true)),
+            Family::ConstantForce => self
+                .force_direction
+                .map(|_| (0.002 * m * g, 0.3 * m * g, true)),
             Family::Spring => self.anchor.map(|_| (0.1 * m, 100.0 * m, true)),
             Family::MassScale => Some((0.25, 4.0, true)),
             Family::AngularDamping => Some((0.03, 30.0, true)),
             Family::Restitution => Some((0.0, 0.95, false)),
             Family::FrictionPatch => self.region.map(|_| (0.0, 1.0, false)),
-            Family::CenterOfMass(axis) => (self.com_limit[axis] > 1e-3).then(|| (-self.com_limit[axis], self.com_limit[axis], false)),
+            Family::CenterOfMass(axis) => (self.com_limit[axis] > 1e-3)
+                .then(|| (-self.com_limit[axis], self.com_limit[axis], false)),
         }
     }
 
@@ -128,23 +135,54 @@ impl Setting {
         let object = self.object.clone();
         let friction_gap = self.base.ground.static_friction - self.base.ground.kinetic_friction;
         Some(match family {
-            Family::ViscousDrag => Effect::ViscousDrag { object: Some(object), coefficient: value },
+            Family::ViscousDrag => Effect::ViscousDrag {
+                object: Some(object),
+                coefficient: value,
+            },
             Family::GroundFriction => Effect::FrictionPatch {
                 center: Vec2::ZERO,
                 half_size: Vec2::splat(1e3),
                 static_friction: value + friction_gap,
                 kinetic_friction: value,
             },
-            Family::ConstantForce => Effect::ConstantForce { object: Some(object), force: self.force_direction? * value },
-            Family::Spring => Effect::Spring { object, point: Vec3::ZERO, anchor: self.anchor?, stiffness: value, rest_length: 0.0, damping: 0.0, tether: false },
-            Family::MassScale => Effect::MassScale { object, factor: value },
-            Family::AngularDamping => Effect::AngularDamping { object: Some(object), coefficient: value },
-            Family::Restitution => Effect::Restitution { object: Some(object), coefficient: value },
+            Family::ConstantForce => Effect::ConstantForce {
+                object: Some(object),
+                force: self.force_direction? * value,
+            },
+            Family::Spring => Effect::Spring {
+                object,
+                point: Vec3::ZERO,
+                anchor: self.anchor?,
+                stiffness: value,
+                rest_length: 0.0,
+                damping: 0.0,
+                tether: false,
+            },
+            Family::MassScale => Effect::MassScale {
+                object,
+                factor: value,
+            },
+            Family::AngularDamping => Effect::AngularDamping {
+                object: Some(object),
+                coefficient: value,
+            },
+            Family::Restitution => Effect::Restitution {
+                object: Some(object),
+                coefficient: value,
+            },
             Family::FrictionPatch => {
                 let (lo, hi) = self.region?;
-                Effect::FrictionPatch { center: (lo + hi) * 0.5, half_size: (hi - lo) * 0.5, static_friction: value + friction_gap, kinetic_friction: value }
+                Effect::FrictionPatch {
+                    center: (lo + hi) * 0.5,
+                    half_size: (hi - lo) * 0.5,
+                    static_friction: value + friction_gap,
+                    kinetic_friction: value,
+                }
             }
-            Family::CenterOfMass(axis) => Effect::CenterOfMassOffset { object, offset: if axis == 0 { Vec3::X } else { Vec3::Y } * value },
+            Family::CenterOfMass(axis) => Effect::CenterOfMassOffset {
+                object,
+                offset: if axis == 0 { Vec3::X } else { Vec3::Y } * value,
+            },
         })
     }
 
@@ -226,7 +264,12 @@ const REFINE_STEPS: usize = 3;
 
 /// Minimum of `f` on `[a, b]` by golden-section search with `steps` narrowing steps after the two
 /// interior points.
-fn golden(mut a: f32, mut b: f32, steps: usize, mut f: impl FnMut(f32) -> Result<f64>) -> Result<()> {
+fn golden(
+    mut a: f32,
+    mut b: f32,
+    steps: usize,
+    mut f: impl FnMut(f32) -> Result<f64>,
+) -> Result<()> {
     let r = 0.618_034f32;
     let (mut c, mut d) = (b - r * (b - a), a + r * (b - a));
     let (mut fc, mut fd) = (f(c)?, f(d)?);
@@ -253,34 +296,57 @@ fn golden(mut a: f32, mut b: f32, steps: usize, mut f: impl FnMut(f32) -> Result
 /// A constant force's direction and a spring's anchor, first estimated from the base model's
 /// misses, are refined with the parameter (`refine`).
 #[allow(clippy::too_many_arguments)]
-pub fn fit(trace: &Trace, setting: &Setting, family: Family, train: &[usize], heldout: &[usize], horizon: usize, base_train: &[Prediction], base_heldout: &[Prediction]) -> Result<Option<Fit>> {
+pub fn fit(
+    trace: &Trace,
+    setting: &Setting,
+    family: Family,
+    train: &[usize],
+    heldout: &[usize],
+    horizon: usize,
+    base_train: &[Prediction],
+    base_heldout: &[Prediction],
+) -> Result<Option<Fit>> {
     let mut setting = setting.clone();
     if family == Family::FrictionPatch {
         setting.region = place_patch(trace, &setting, train, horizon);
     }
     let setting = &setting;
-    let Some((lo, hi, log)) = setting.range(family) else { return Ok(None) };
+    let Some((lo, hi, log)) = setting.range(family) else {
+        return Ok(None);
+    };
     let to_x = |v: f32| if log { v.ln() } else { v };
     let from_x = |x: f32| if log { x.exp() } else { x };
     let squared_errors = |physics: &PhysicsConfig, starts: &[usize]| -> Option<Vec<f64>> {
         // Parameters the physics rejects (a centre of mass outside the body) fit nothing.
-        trace.predict(physics, setting.shape, starts, horizon).ok().map(|p| p.iter().map(|p| (p.error as f64).powi(2)).collect())
+        trace
+            .predict(physics, setting.shape, starts, horizon)
+            .ok()
+            .map(|p| p.iter().map(|p| (p.error as f64).powi(2)).collect())
     };
     let mean = |e: &[f64]| e.iter().sum::<f64>() / e.len().max(1) as f64;
     // Every evaluated parameter with its per-window squared errors.
     let mut evaluated: Vec<(f32, Vec<f64>)> = Vec::new();
     let loss = |v: f32, setting: &Setting, evaluated: &mut Vec<(f32, Vec<f64>)>| -> Result<f64> {
-        let Some(e) = setting.physics(family, v).and_then(|p| squared_errors(&p, train)) else { return Ok(f64::INFINITY) };
+        let Some(e) = setting
+            .physics(family, v)
+            .and_then(|p| squared_errors(&p, train))
+        else {
+            return Ok(f64::INFINITY);
+        };
         let l = mean(&e);
         evaluated.push((v, e));
         Ok(l)
     };
-    let xs: Vec<f32> = (0..GRID).map(|i| to_x(lo) + (to_x(hi) - to_x(lo)) * i as f32 / (GRID - 1) as f32).collect();
+    let xs: Vec<f32> = (0..GRID)
+        .map(|i| to_x(lo) + (to_x(hi) - to_x(lo)) * i as f32 / (GRID - 1) as f32)
+        .collect();
     let mut losses = Vec::with_capacity(GRID);
     for &x in &xs {
         losses.push(loss(from_x(x), setting, &mut evaluated)?);
     }
-    let best = (0..GRID).min_by(|&a, &b| losses[a].total_cmp(&losses[b])).unwrap_or(0);
+    let best = (0..GRID)
+        .min_by(|&a, &b| losses[a].total_cmp(&losses[b]))
+        .unwrap_or(0);
     if !losses[best].is_finite() {
         return Ok(None);
     }
@@ -288,14 +354,25 @@ pub fn fit(trace: &Trace, setting: &Setting, family: Family, train: &[usize], he
     let hopeful = 1.0 - losses[best] / mean_square(base_train).max(1e-12) >= HOPELESS_GAIN;
     if hopeful {
         // Golden-section search in the grid cells around the best grid point.
-        golden(xs[best.saturating_sub(1)], xs[(best + 1).min(GRID - 1)], 3, |x| loss(from_x(x), &setting, &mut evaluated))?;
+        golden(
+            xs[best.saturating_sub(1)],
+            xs[(best + 1).min(GRID - 1)],
+            3,
+            |x| loss(from_x(x), &setting, &mut evaluated),
+        )?;
     }
     let (estimate, low, high) = bootstrap_interval(&evaluated, 200, to_x, from_x);
     let (mut value, mut train_after) = best_of(&evaluated);
-    let mut train_errors = evaluated.iter().find(|(v, _)| *v == value).map(|e| e.1.clone()).unwrap_or_default();
+    let mut train_errors = evaluated
+        .iter()
+        .find(|(v, _)| *v == value)
+        .map(|e| e.1.clone())
+        .unwrap_or_default();
     // The vertex estimate if the physics takes it and it fits the training windows no worse.
     if estimate.is_finite()
-        && let Some(e) = setting.physics(family, estimate).and_then(|p| squared_errors(&p, train))
+        && let Some(e) = setting
+            .physics(family, estimate)
+            .and_then(|p| squared_errors(&p, train))
         && mean(&e) <= train_after
     {
         (value, train_after) = (estimate, mean(&e));
@@ -306,15 +383,26 @@ pub fn fit(trace: &Trace, setting: &Setting, family: Family, train: &[usize], he
     // refine them with the parameter by Gauss-Newton on the windows' misses.
     if hopeful
         && let Some(refined) = refine(trace, &setting, family, value, train, horizon)?
-        && let Some(e) = refined.setting.physics(family, refined.value).and_then(|p| squared_errors(&p, train))
+        && let Some(e) = refined
+            .setting
+            .physics(family, refined.value)
+            .and_then(|p| squared_errors(&p, train))
         && mean(&e) < train_after
     {
-        (value, train_after, low, high) = (refined.value, mean(&e), refined.low.min(refined.value), refined.high.max(refined.value));
+        (value, train_after, low, high) = (
+            refined.value,
+            mean(&e),
+            refined.low.min(refined.value),
+            refined.high.max(refined.value),
+        );
         setting = refined.setting;
         train_errors = e;
     }
-    let physics = setting.physics(family, value).ok_or_else(|| anyhow::anyhow!("family {family:?} lost its setting"))?;
-    let held: Vec<f64> = squared_errors(&physics, heldout).ok_or_else(|| anyhow::anyhow!("family {family:?}: held-out prediction failed"))?;
+    let physics = setting
+        .physics(family, value)
+        .ok_or_else(|| anyhow::anyhow!("family {family:?} lost its setting"))?;
+    let held: Vec<f64> = squared_errors(&physics, heldout)
+        .ok_or_else(|| anyhow::anyhow!("family {family:?}: held-out prediction failed"))?;
     let (name, unit) = family.parameter();
     Ok(Some(Fit {
         effect: family.name().to_string(),
@@ -350,7 +438,12 @@ const PATCH_STEPS: usize = 6;
 /// The loss here is the miss along the whole predicted path, not only at its end: where a window
 /// ends at rest, an earlier edge with less friction stops the object at the same place, and only
 /// when it slows down tells them apart.
-fn place_patch(trace: &Trace, setting: &Setting, train: &[usize], horizon: usize) -> Option<(Vec2, Vec2)> {
+fn place_patch(
+    trace: &Trace,
+    setting: &Setting,
+    train: &[usize],
+    horizon: usize,
+) -> Option<(Vec2, Vec2)> {
     let (lo, hi) = setting.region?;
     let axis = if hi.x - lo.x >= hi.y - lo.y { 0 } else { 1 };
     let loss = |region: (Vec2, Vec2), friction: f32| -> f64 {
@@ -358,7 +451,9 @@ fn place_patch(trace: &Trace, setting: &Setting, train: &[usize], horizon: usize
         s.region = Some(region);
         s.physics(Family::FrictionPatch, friction)
             .and_then(|p| trace.predict(&p, setting.shape, train, horizon).ok())
-            .map_or(f64::INFINITY, |p| path_mean_square(trace, setting.shape, &p))
+            .map_or(f64::INFINITY, |p| {
+                path_mean_square(trace, setting.shape, &p)
+            })
     };
     // `beyond`: the patch is the part past the edge (higher coordinate), else the part before it.
     let cut = |edge: f32, beyond: bool| {
@@ -370,7 +465,13 @@ fn place_patch(trace: &Trace, setting: &Setting, train: &[usize], horizon: usize
         }
         (a, b)
     };
-    let best_friction = |region| PATCH_FRICTION.iter().map(|&f| (f, loss(region, f))).min_by(|a, b| a.1.total_cmp(&b.1)).map(|x| x.0);
+    let best_friction = |region| {
+        PATCH_FRICTION
+            .iter()
+            .map(|&f| (f, loss(region, f)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|x| x.0)
+    };
     let friction = best_friction((lo, hi))?;
     let cell = (hi[axis] - lo[axis]) / PATCH_CELLS as f32;
     let mut best = ((lo, hi), None, loss((lo, hi), friction));
@@ -383,7 +484,9 @@ fn place_patch(trace: &Trace, setting: &Setting, train: &[usize], horizon: usize
             }
         }
     }
-    let Some((edge, beyond)) = best.1 else { return Some(best.0) };
+    let Some((edge, beyond)) = best.1 else {
+        return Some(best.0);
+    };
     // A patch no better than the plain table (friction as modelled) is not worth refining.
     let plain = loss((lo, hi), setting.base.ground.kinetic_friction);
     if best.2 > (1.0 - HOPELESS_GAIN) * plain {
@@ -394,21 +497,43 @@ fn place_patch(trace: &Trace, setting: &Setting, train: &[usize], horizon: usize
     let misses = |q: &[f64]| {
         let mut s = setting.clone();
         s.region = Some(cut(q[0] as f32, beyond));
-        let physics = s.physics(Family::FrictionPatch, q[1] as f32).filter(|_| q[1] >= 0.0)?;
-        path_misses(trace, setting.shape, &trace.predict(&physics, setting.shape, train, horizon).ok()?)
+        let physics = s
+            .physics(Family::FrictionPatch, q[1] as f32)
+            .filter(|_| q[1] >= 0.0)?;
+        path_misses(
+            trace,
+            setting.shape,
+            &trace
+                .predict(&physics, setting.shape, train, horizon)
+                .ok()?,
+        )
     };
-    let (q, _) = gauss_newton(&[edge as f64, friction as f64], &[0.003, 0.01], PATCH_STEPS, misses)?;
+    let (q, _) = gauss_newton(
+        &[edge as f64, friction as f64],
+        &[0.003, 0.01],
+        PATCH_STEPS,
+        misses,
+    )?;
     Some(cut(q[0] as f32, beyond))
 }
 
 /// The x, y box that `object`'s particles covered from each start in `starts` to `horizon` ticks
 /// later, as tracked.
-pub fn footprint(trace: &Trace, object: ShapeId, starts: &[usize], horizon: usize) -> Option<(Vec2, Vec2)> {
+pub fn footprint(
+    trace: &Trace,
+    object: ShapeId,
+    starts: &[usize],
+    horizon: usize,
+) -> Option<(Vec2, Vec2)> {
     let range = trace.base.shapes.range(object);
     starts
         .iter()
         .flat_map(|&k| k..=(k + horizon).min(trace.states.len() - 1))
-        .flat_map(|k| trace.states[k].position[range.clone()].iter().map(|p| p.truncate()))
+        .flat_map(|k| {
+            trace.states[k].position[range.clone()]
+                .iter()
+                .map(|p| p.truncate())
+        })
         .map(|p| (p, p))
         .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
 }
@@ -422,7 +547,13 @@ struct Refined {
 }
 
 /// Per window, the tracked minus the predicted centre of mass at the horizon (x, y), m.
-fn misses(trace: &Trace, physics: &PhysicsConfig, shape: ShapeId, starts: &[usize], horizon: usize) -> Option<Vec<f64>> {
+fn misses(
+    trace: &Trace,
+    physics: &PhysicsConfig,
+    shape: ShapeId,
+    starts: &[usize],
+    horizon: usize,
+) -> Option<Vec<f64>> {
     let p = trace.predict(physics, shape, starts, horizon).ok()?;
     Some(
         p.iter()
@@ -438,11 +569,24 @@ fn misses(trace: &Trace, physics: &PhysicsConfig, shape: ShapeId, starts: &[usiz
 /// Gauss-Newton refinement of the quantities a constant force (its two components) or a spring
 /// (stiffness and anchor) takes from the data, on the windows' misses, starting from the
 /// one-parameter fit. The interval is a bootstrap over windows of the last linearised step.
-fn refine(trace: &Trace, setting: &Setting, family: Family, value: f32, train: &[usize], horizon: usize) -> Result<Option<Refined>> {
+fn refine(
+    trace: &Trace,
+    setting: &Setting,
+    family: Family,
+    value: f32,
+    train: &[usize],
+    horizon: usize,
+) -> Result<Option<Refined>> {
     // The parameters, their finite-difference steps, and the setting + value they stand for.
     let (p, steps): (Vec<f64>, Vec<f64>) = match (family, setting.force_direction, setting.anchor) {
-        (Family::ConstantForce, Some(d), _) => (vec![(d.x * value) as f64, (d.y * value) as f64], vec![0.1 * value.max(1e-3) as f64; 2]),
-        (Family::Spring, _, Some(a)) => (vec![value as f64, a.x as f64, a.y as f64], vec![0.1 * value.max(1e-3) as f64, 0.01, 0.01]),
+        (Family::ConstantForce, Some(d), _) => (
+            vec![(d.x * value) as f64, (d.y * value) as f64],
+            vec![0.1 * value.max(1e-3) as f64; 2],
+        ),
+        (Family::Spring, _, Some(a)) => (
+            vec![value as f64, a.x as f64, a.y as f64],
+            vec![0.1 * value.max(1e-3) as f64, 0.01, 0.01],
+        ),
         _ => return Ok(None),
     };
     let apply = |p: &[f64]| -> Option<(Setting, f32)> {
@@ -460,14 +604,26 @@ fn refine(trace: &Trace, setting: &Setting, family: Family, value: f32, train: &
             }
         }
     };
-    let residual = |p: &[f64]| apply(p).and_then(|(s, v)| s.physics(family, v)).and_then(|physics| misses(trace, &physics, setting.shape, train, horizon));
+    let residual = |p: &[f64]| {
+        apply(p)
+            .and_then(|(s, v)| s.physics(family, v))
+            .and_then(|physics| misses(trace, &physics, setting.shape, train, horizon))
+    };
     let value_of = |p: &[f64]| apply(p).map(|x| x.1);
-    let Some((p, last)) = gauss_newton(&p, &steps, REFINE_STEPS, residual) else { return Ok(None) };
-    let Some((jac, r)) = last else { return Ok(None) };
-    let Some((refined, value)) = apply(&p) else { return Ok(None) };
+    let Some((p, last)) = gauss_newton(&p, &steps, REFINE_STEPS, residual) else {
+        return Ok(None);
+    };
+    let Some((jac, r)) = last else {
+        return Ok(None);
+    };
+    let Some((refined, value)) = apply(&p) else {
+        return Ok(None);
+    };
     // Bootstrap over windows (two rows each) of the last step, around the final parameters.
     let n = r.len() / 2;
-    let Ok(full) = jac.clone().svd(true, true).solve(&(-&r), 1e-12) else { return Ok(None) };
+    let Ok(full) = jac.clone().svd(true, true).solve(&(-&r), 1e-12) else {
+        return Ok(None);
+    };
     let mut state = 0x9E37_79B9_7F4A_7C15u64;
     let mut picks = Vec::new();
     for _ in 0..200 {
@@ -479,12 +635,23 @@ fn refine(trace: &Trace, setting: &Setting, family: Family, value: f32, train: &
         let j = nalgebra::DMatrix::from_fn(rows.len(), p.len(), |i, k| jac[(rows[i], k)]);
         let y = nalgebra::DVector::from_fn(rows.len(), |i, _| -r[rows[i]]);
         if let Ok(b) = j.svd(true, true).solve(&y, 1e-12) {
-            let q: Vec<f64> = p.iter().zip(b.iter().zip(full.iter())).map(|(x, (b, f))| x + b - f).collect();
+            let q: Vec<f64> = p
+                .iter()
+                .zip(b.iter().zip(full.iter()))
+                .map(|(x, (b, f))| x + b - f)
+                .collect();
             picks.extend(value_of(&q));
         }
     }
-    let Some((low, high)) = interval_95(&mut picks) else { return Ok(None) };
-    Ok(Some(Refined { setting: refined, value, low, high }))
+    let Some((low, high)) = interval_95(&mut picks) else {
+        return Ok(None);
+    };
+    Ok(Some(Refined {
+        setting: refined,
+        value,
+        low,
+        high,
+    }))
 }
 
 /// The Jacobian and residual of a Gauss-Newton step.
@@ -495,7 +662,12 @@ type Linearised = (nalgebra::DMatrix<f64>, nalgebra::DVector<f64>);
 /// step is taken only if it lowers the sum of squares, halved until it does. Returns the final
 /// parameters and the last linearisation (None if no step was tried), or None if the residual
 /// cannot be evaluated at the start.
-fn gauss_newton(p: &[f64], steps: &[f64], iterations: usize, residual: impl Fn(&[f64]) -> Option<Vec<f64>>) -> Option<(Vec<f64>, Option<Linearised>)> {
+fn gauss_newton(
+    p: &[f64],
+    steps: &[f64],
+    iterations: usize,
+    residual: impl Fn(&[f64]) -> Option<Vec<f64>>,
+) -> Option<(Vec<f64>, Option<Linearised>)> {
     let norm = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
     let mut p = p.to_vec();
     let mut r_now = residual(&p)?;
@@ -505,18 +677,31 @@ fn gauss_newton(p: &[f64], steps: &[f64], iterations: usize, residual: impl Fn(&
         for (j, h) in steps.iter().enumerate() {
             let mut q = p.clone();
             q[j] += h;
-            let Some(r) = residual(&q) else { return Some((p, last)) };
-            columns.push(r.iter().zip(&r_now).map(|(a, b)| (a - b) / h).collect::<Vec<f64>>());
+            let Some(r) = residual(&q) else {
+                return Some((p, last));
+            };
+            columns.push(
+                r.iter()
+                    .zip(&r_now)
+                    .map(|(a, b)| (a - b) / h)
+                    .collect::<Vec<f64>>(),
+            );
         }
         let jac = nalgebra::DMatrix::from_fn(r_now.len(), p.len(), |i, j| columns[j][i]);
         let r = nalgebra::DVector::from_vec(r_now.clone());
         // A step that moves the prediction by -r.
-        let Ok(step) = jac.clone().svd(true, true).solve(&(-&r), 1e-12) else { break };
+        let Ok(step) = jac.clone().svd(true, true).solve(&(-&r), 1e-12) else {
+            break;
+        };
         last = Some((jac, r));
         let mut accepted = false;
         for halving in 0..4 {
             let scale = 0.5f64.powi(halving);
-            let q: Vec<f64> = p.iter().zip(step.iter()).map(|(x, d)| x + scale * d).collect();
+            let q: Vec<f64> = p
+                .iter()
+                .zip(step.iter())
+                .map(|(x, d)| x + scale * d)
+                .collect();
             if let Some(r) = residual(&q)
                 && norm(&r) < norm(&r_now)
             {
@@ -535,7 +720,11 @@ fn gauss_newton(p: &[f64], steps: &[f64], iterations: usize, residual: impl Fn(&
 fn interval_95(picks: &mut [f32]) -> Option<(f32, f32)> {
     picks.sort_by(f32::total_cmp);
     let k = picks.len();
-    let at = |q: f32| picks.get(((k as f32 * q) as usize).min(k.saturating_sub(1))).copied();
+    let at = |q: f32| {
+        picks
+            .get(((k as f32 * q) as usize).min(k.saturating_sub(1)))
+            .copied()
+    };
     Some((at(0.025)?, at(0.975)?))
 }
 
@@ -550,7 +739,11 @@ fn pick_window(state: &mut u64, n: usize) -> usize {
 
 /// The evaluated parameter with the lowest mean loss, and that loss.
 fn best_of(evaluated: &[(f32, Vec<f64>)]) -> (f32, f64) {
-    evaluated.iter().map(|(v, e)| (*v, e.iter().sum::<f64>() / e.len().max(1) as f64)).min_by(|x, y| x.1.total_cmp(&y.1)).unwrap_or((f32::NAN, f64::INFINITY))
+    evaluated
+        .iter()
+        .map(|(v, e)| (*v, e.iter().sum::<f64>() / e.len().max(1) as f64))
+        .min_by(|x, y| x.1.total_cmp(&y.1))
+        .unwrap_or((f32::NAN, f64::INFINITY))
 }
 
 /// Percentile interval of the best parameter over bootstrap resamples of the windows: per
@@ -558,7 +751,12 @@ fn best_of(evaluated: &[(f32, Vec<f64>)]) -> (f32, f64) {
 /// (in the search coordinate `to_x`), so the interval is not limited to the evaluated points.
 /// Returns the estimate (the same vertex on all windows, so it lies inside its own interval) and
 /// the interval.
-fn bootstrap_interval(evaluated: &[(f32, Vec<f64>)], resamples: usize, to_x: impl Fn(f32) -> f32, from_x: impl Fn(f32) -> f32) -> (f32, f32, f32) {
+fn bootstrap_interval(
+    evaluated: &[(f32, Vec<f64>)],
+    resamples: usize,
+    to_x: impl Fn(f32) -> f32,
+    from_x: impl Fn(f32) -> f32,
+) -> (f32, f32, f32) {
     let n = evaluated.first().map_or(0, |e| e.1.len());
     if n == 0 {
         return (f32::NAN, f32::NAN, f32::NAN);
@@ -569,19 +767,32 @@ fn bootstrap_interval(evaluated: &[(f32, Vec<f64>)], resamples: usize, to_x: imp
     // The minimum of the weighted loss: the vertex of the parabola through the best point and its
     // neighbours.
     let minimum = |weight: &[u32]| -> Option<f32> {
-        let loss: Vec<f64> = points.iter().map(|(_, e)| e.iter().zip(weight).map(|(x, w)| x * *w as f64).sum()).collect();
+        let loss: Vec<f64> = points
+            .iter()
+            .map(|(_, e)| e.iter().zip(weight).map(|(x, w)| x * *w as f64).sum())
+            .collect();
         let i = (0..loss.len()).min_by(|&a, &b| loss[a].total_cmp(&loss[b]))?;
         Some(if i > 0 && i + 1 < points.len() {
-            let (x0, x1, x2) = (points[i - 1].0 as f64, points[i].0 as f64, points[i + 1].0 as f64);
+            let (x0, x1, x2) = (
+                points[i - 1].0 as f64,
+                points[i].0 as f64,
+                points[i + 1].0 as f64,
+            );
             let (y0, y1, y2) = (loss[i - 1], loss[i], loss[i + 1]);
             let den = (x1 - x0) * (y1 - y2) - (x1 - x2) * (y1 - y0);
             let num = (x1 - x0).powi(2) * (y1 - y2) - (x1 - x2).powi(2) * (y1 - y0);
-            if den.abs() > 1e-18 { (x1 - 0.5 * num / den).clamp(x0, x2) as f32 } else { x1 as f32 }
+            if den.abs() > 1e-18 {
+                (x1 - 0.5 * num / den).clamp(x0, x2) as f32
+            } else {
+                x1 as f32
+            }
         } else {
             points[i].0
         })
     };
-    let Some(estimate) = minimum(&vec![1; n]) else { return (f32::NAN, f32::NAN, f32::NAN) };
+    let Some(estimate) = minimum(&vec![1; n]) else {
+        return (f32::NAN, f32::NAN, f32::NAN);
+    };
     let mut state = 0x2545_F491_4F6C_DD1Du64;
     let mut picks = Vec::with_capacity(resamples);
     for _ in 0..resamples {
@@ -614,14 +825,19 @@ pub fn com_limits(trace: &Trace, shape: ShapeId) -> [f32; 2] {
 /// Directions for the force-like families from the base model's displacement errors: the mean
 /// error's direction (a constant force) and the anchor of the spring `e = a (anchor - x)` that
 /// fits them best, if it pulls (`a > 0`).
-pub fn directions(trace: &Trace, shape: ShapeId, base: &[Prediction]) -> (Option<Vec3>, Option<Vec3>) {
+pub fn directions(
+    trace: &Trace,
+    shape: ShapeId,
+    base: &[Prediction],
+) -> (Option<Vec3>, Option<Vec3>) {
     // Per window: the mean predicted position and the miss (tracked - predicted) at its end.
     let rows: Vec<(Vec2, Vec2)> = base
         .iter()
         .map(|p| {
             let end = p.start + p.path.len() - 1;
             let predicted = p.path.last().copied().unwrap_or_default().truncate();
-            let mean_x = p.path.iter().map(|q| q.truncate()).sum::<Vec2>() / p.path.len().max(1) as f32;
+            let mean_x =
+                p.path.iter().map(|q| q.truncate()).sum::<Vec2>() / p.path.len().max(1) as f32;
             (mean_x, trace.centroid(shape, end).truncate() - predicted)
         })
         .collect();
@@ -658,23 +874,44 @@ mod tests {
     /// A 0.2 kg box (6 x 4 x 2 cm) released at height `z` on a table with kinetic `friction` (the
     /// base physics; static 0.01 higher), set to `kick(k)` before tick k where that is Some, and
     /// traced for `ticks` ticks by the base physics plus `hidden`.
-    fn traced_box(z: f32, friction: f32, hidden: Effect, ticks: usize, kick: impl Fn(usize) -> Option<Vec3>) -> (Trace, ShapeId) {
+    fn traced_box(
+        z: f32,
+        friction: f32,
+        hidden: Effect,
+        ticks: usize,
+        kick: impl Fn(usize) -> Option<Vec3>,
+    ) -> (Trace, ShapeId) {
         use crate::math::Pose;
         use crate::scene::{WorldBuilder, box_lattice};
         let mut b = WorldBuilder::new();
         let points = box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01);
-        let shape = b.add_rigid("box", &points, 0.005, 0.2 / points.len() as f32, Pose::from_translation(Vec3::new(0.0, 0.0, z)), Vec3::ONE);
+        let shape = b.add_rigid(
+            "box",
+            &points,
+            0.005,
+            0.2 / points.len() as f32,
+            Pose::from_translation(Vec3::new(0.0, 0.0, z)),
+            Vec3::ONE,
+        );
         let mut world = b.build();
         let mut base = PhysicsConfig::default();
         base.ground.static_friction = friction + 0.01;
         base.ground.kinetic_friction = friction;
         let mut truth = base.clone();
         truth.effects = vec![hidden];
-        let mut trace = Trace { base: world.clone(), physics: base, robot: None, states: vec![super::super::trace::State::of(&world)] };
+        let mut trace = Trace {
+            base: world.clone(),
+            physics: base,
+            robot: None,
+            states: vec![super::super::trace::State::of(&world)],
+        };
         let mut solver = crate::physics::Solver::new(truth, &world).unwrap();
         for k in 0..ticks {
             if let Some(v) = kick(k) {
-                world.shapes.range(shape).for_each(|i| world.particles.velocity[i] = v);
+                world
+                    .shapes
+                    .range(shape)
+                    .for_each(|i| world.particles.velocity[i] = v);
             }
             solver.step(&mut world).unwrap();
             trace.states.push(super::super::trace::State::of(&world));
@@ -685,7 +922,9 @@ mod tests {
     /// The box resting on a slippery table (kinetic friction 0.03), kicked to `kicks[0]` at tick 0
     /// and to `kicks[1]` at tick 75, traced for 150 ticks.
     fn kicked_box(hidden: Effect, kicks: [Vec3; 2]) -> (Trace, ShapeId) {
-        traced_box(0.0151, 0.03, hidden, 150, |k| (k % 75 == 0).then(|| kicks[k / 75]))
+        traced_box(0.0151, 0.03, hidden, 150, |k| {
+            (k % 75 == 0).then(|| kicks[k / 75])
+        })
     }
 
     /// Windows whose start velocity (differenced over two ticks each way) does not span a kick
@@ -699,14 +938,43 @@ mod tests {
     #[test]
     fn gauss_newton_recovers_a_constant_forces_direction_and_magnitude() {
         let force = Vec3::new(0.03, 0.017, 0.0); // 0.0345 N at 30 degrees
-        let (trace, shape) = kicked_box(Effect::ConstantForce { object: Some("box".into()), force }, [Vec3::new(0.3, -0.2, 0.0), Vec3::new(-0.35, 0.1, 0.0)]);
+        let (trace, shape) = kicked_box(
+            Effect::ConstantForce {
+                object: Some("box".into()),
+                force,
+            },
+            [Vec3::new(0.3, -0.2, 0.0), Vec3::new(-0.35, 0.1, 0.0)],
+        );
         let guess = glam::Quat::from_rotation_z(25f32.to_radians()) * force.normalize();
-        let setting = Setting { object: "box".into(), shape, mass: 0.2, base: trace.physics.clone(), force_direction: Some(guess), anchor: None, region: None, com_limit: [0.0; 2] };
-        let refined = refine(&trace, &setting, Family::ConstantForce, 0.5 * force.length(), &between_kicks(), 30).unwrap().unwrap();
+        let setting = Setting {
+            object: "box".into(),
+            shape,
+            mass: 0.2,
+            base: trace.physics.clone(),
+            force_direction: Some(guess),
+            anchor: None,
+            region: None,
+            com_limit: [0.0; 2],
+        };
+        let refined = refine(
+            &trace,
+            &setting,
+            Family::ConstantForce,
+            0.5 * force.length(),
+            &between_kicks(),
+            30,
+        )
+        .unwrap()
+        .unwrap();
         let d = refined.setting.force_direction.unwrap();
         let angle = d.angle_between(force.normalize()).to_degrees();
         assert!(angle < 4.0, "direction off by {angle} degrees");
-        assert!((refined.value - force.length()).abs() < 0.15 * force.length(), "{} vs {}", refined.value, force.length());
+        assert!(
+            (refined.value - force.length()).abs() < 0.15 * force.length(),
+            "{} vs {}",
+            refined.value,
+            force.length()
+        );
         assert!(refined.low <= refined.value && refined.value <= refined.high);
     }
 
@@ -716,33 +984,102 @@ mod tests {
     #[test]
     fn a_friction_patch_is_placed_at_its_edge_with_its_friction() {
         let (center, half_size) = (Vec2::new(0.22, 0.0), Vec2::new(0.1, 0.2));
-        let patch = Effect::FrictionPatch { center, half_size, static_friction: 0.2, kinetic_friction: 0.2 };
-        let (trace, shape) = kicked_box(patch, [Vec3::new(0.45, 0.0, 0.0), Vec3::new(-0.4, 0.0, 0.0)]);
+        let patch = Effect::FrictionPatch {
+            center,
+            half_size,
+            static_friction: 0.2,
+            kinetic_friction: 0.2,
+        };
+        let (trace, shape) = kicked_box(
+            patch,
+            [Vec3::new(0.45, 0.0, 0.0), Vec3::new(-0.4, 0.0, 0.0)],
+        );
         let train = between_kicks();
         let region = footprint(&trace, shape, &train, 30);
-        let setting = Setting { object: "box".into(), shape, mass: 0.2, base: trace.physics.clone(), force_direction: None, anchor: None, region, com_limit: [0.0; 2] };
+        let setting = Setting {
+            object: "box".into(),
+            shape,
+            mass: 0.2,
+            base: trace.physics.clone(),
+            force_direction: None,
+            anchor: None,
+            region,
+            com_limit: [0.0; 2],
+        };
         let base_train = trace.predict(&setting.base, shape, &train, 30).unwrap();
-        let fit = fit(&trace, &setting, Family::FrictionPatch, &train, &train, 30, &base_train, &base_train).unwrap().unwrap();
-        let Some(Effect::FrictionPatch { center, half_size, .. }) = fit.effect_term else { panic!("{fit:?}") };
+        let fit = fit(
+            &trace,
+            &setting,
+            Family::FrictionPatch,
+            &train,
+            &train,
+            30,
+            &base_train,
+            &base_train,
+        )
+        .unwrap()
+        .unwrap();
+        let Some(Effect::FrictionPatch {
+            center, half_size, ..
+        }) = fit.effect_term
+        else {
+            panic!("{fit:?}")
+        };
         let (lo, hi) = (center - half_size, center + half_size);
         // The patch starts where the true one does and lies beyond it, within the slid-over area.
         assert!((lo.x - 0.12).abs() < 0.01, "edge at {} (truth 0.12)", lo.x);
-        assert!(hi.x > 0.13 && hi.x <= region.unwrap().1.x + 1e-4, "{lo} {hi}");
-        assert!((fit.value - 0.2).abs() < 0.03 && fit.train_gain() > 0.9, "{fit:?}");
+        assert!(
+            hi.x > 0.13 && hi.x <= region.unwrap().1.x + 1e-4,
+            "{lo} {hi}"
+        );
+        assert!(
+            (fit.value - 0.2).abs() < 0.03 && fit.train_gain() > 0.9,
+            "{fit:?}"
+        );
     }
 
     /// A box thrown onto a slippery table, bouncing: the share of its impact speed the ground gives
     /// back shows in how far it slides (it brakes only while it touches the table).
     #[test]
     fn a_bounce_is_fitted_with_its_restitution() {
-        let bounce = Effect::Restitution { object: Some("box".into()), coefficient: 0.6 };
+        let bounce = Effect::Restitution {
+            object: Some("box".into()),
+            coefficient: 0.6,
+        };
         let (trace, shape) = traced_box(0.2, 0.25, bounce, 60, |k| (k == 0).then_some(Vec3::X));
         let train: Vec<usize> = (2..=10).step_by(2).collect();
-        let setting = Setting { object: "box".into(), shape, mass: 0.2, base: trace.physics.clone(), force_direction: None, anchor: None, region: None, com_limit: [0.0; 2] };
+        let setting = Setting {
+            object: "box".into(),
+            shape,
+            mass: 0.2,
+            base: trace.physics.clone(),
+            force_direction: None,
+            anchor: None,
+            region: None,
+            com_limit: [0.0; 2],
+        };
         let base_train = trace.predict(&setting.base, shape, &train, 30).unwrap();
-        let fit = fit(&trace, &setting, Family::Restitution, &train, &train, 30, &base_train, &base_train).unwrap().unwrap();
-        eprintln!("restitution fitted {} (truth 0.6), fit gain {:.2}", fit.value, fit.train_gain());
-        assert!((fit.value - 0.6).abs() < 0.1 && fit.train_gain() > 0.5, "{fit:?}");
+        let fit = fit(
+            &trace,
+            &setting,
+            Family::Restitution,
+            &train,
+            &train,
+            30,
+            &base_train,
+            &base_train,
+        )
+        .unwrap()
+        .unwrap();
+        eprintln!(
+            "restitution fitted {} (truth 0.6), fit gain {:.2}",
+            fit.value,
+            fit.train_gain()
+        );
+        assert!(
+            (fit.value - 0.6).abs() < 0.1 && fit.train_gain() > 0.5,
+            "{fit:?}"
+        );
     }
 
     #[test]
@@ -753,14 +1090,25 @@ mod tests {
             Ok(((x - 0.7) as f64).powi(2))
         })
         .unwrap();
-        let best = seen.iter().copied().min_by(|a, b| (a - 0.7).abs().total_cmp(&(b - 0.7).abs())).unwrap();
-        assert!((best - 0.7).abs() < 0.01 && seen.len() == 14, "{best} after {}", seen.len());
+        let best = seen
+            .iter()
+            .copied()
+            .min_by(|a, b| (a - 0.7).abs().total_cmp(&(b - 0.7).abs()))
+            .unwrap();
+        assert!(
+            (best - 0.7).abs() < 0.01 && seen.len() == 14,
+            "{best} after {}",
+            seen.len()
+        );
     }
 
     #[test]
     fn a_spring_anchor_is_recovered_from_misses_and_a_push_has_none() {
         let anchor = Vec2::new(0.45, -0.2);
-        let pulls: Vec<(Vec2, Vec2)> = (0..8).map(|k| Vec2::new(0.5 + 0.01 * k as f32, -0.1 + 0.03 * k as f32)).map(|x| (x, 0.3 * (anchor - x))).collect();
+        let pulls: Vec<(Vec2, Vec2)> = (0..8)
+            .map(|k| Vec2::new(0.5 + 0.01 * k as f32, -0.1 + 0.03 * k as f32))
+            .map(|x| (x, 0.3 * (anchor - x)))
+            .collect();
         let found = spring_anchor(&pulls).unwrap();
         assert!(found.distance(anchor) < 1e-4, "{found}");
         let pushes: Vec<(Vec2, Vec2)> = pulls.iter().map(|&(x, e)| (x, -e)).collect();
@@ -773,11 +1121,19 @@ mod tests {
         let evaluated: Vec<(f32, Vec<f64>)> = (0..21)
             .map(|i| {
                 let v = 0.5 + i as f32 * 0.05;
-                (v, (0..12).map(|w| ((v - 1.0) as f64).powi(2) + 0.001 * ((w * 7 % 5) as f64)).collect())
+                (
+                    v,
+                    (0..12)
+                        .map(|w| ((v - 1.0) as f64).powi(2) + 0.001 * ((w * 7 % 5) as f64))
+                        .collect(),
+                )
             })
             .collect();
         let (estimate, lo, hi) = bootstrap_interval(&evaluated, 100, |v| v, |x| x);
         assert!(lo <= 1.0 && hi >= 1.0 && hi - lo < 0.11, "{lo} {hi}");
-        assert!((estimate - 1.0).abs() < 0.02 && lo <= estimate && estimate <= hi, "{estimate}");
+        assert!(
+            (estimate - 1.0).abs() < 0.02 && lo <= estimate && estimate <= hi,
+            "{estimate}"
+        );
     }
 }

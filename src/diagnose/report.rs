@@ -84,11 +84,18 @@ pub struct Report {
 
 impl Report {
     pub fn new(recording: String, model_file: String, objects: Vec<ObjectReport>) -> Self {
-        let main = objects.iter().filter(|o| o.effect != "none").max_by(|a, b| a.explained_fraction.total_cmp(&b.explained_fraction)).or(objects.first());
+        let main = objects
+            .iter()
+            .filter(|o| o.effect != "none")
+            .max_by(|a, b| a.explained_fraction.total_cmp(&b.explained_fraction))
+            .or(objects.first());
         Report {
             recording,
             model_file,
-            mismatch: objects.iter().flat_map(|o| o.mismatch.iter().cloned()).collect(),
+            mismatch: objects
+                .iter()
+                .flat_map(|o| o.mismatch.iter().cloned())
+                .collect(),
             object: main.map_or(String::new(), |o| o.object.clone()),
             effect: main.map_or("none".into(), |o| o.effect.clone()),
             parameters: main.map_or(Vec::new(), |o| o.parameters.clone()),
@@ -122,15 +129,29 @@ impl Report {
                     md,
                     "**Locate.** Short open-loop predictions (0.2 s) miss the tracked object by more than {:.1} mm, and {} explains the miss, in the windows below (another {} short deviation(s) it does not explain are listed under `unexplained` in report.json):\n",
                     o.locate_threshold_mm,
-                    o.explained_by.as_ref().map_or("the named effect".to_string(), |e| format!("an effect of another object ({e})")),
+                    o.explained_by
+                        .as_ref()
+                        .map_or("the named effect".to_string(), |e| format!(
+                            "an effect of another object ({e})"
+                        )),
                     o.unexplained.len()
                 );
-                let _ = writeln!(md, "| from (s) | to (s) | region x (m) | region y (m) | phase | peak error (mm) |\n|---|---|---|---|---|---|");
+                let _ = writeln!(
+                    md,
+                    "| from (s) | to (s) | region x (m) | region y (m) | phase | peak error (mm) |\n|---|---|---|---|---|---|"
+                );
                 for m in &o.mismatch {
                     let _ = writeln!(
                         md,
                         "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {} | {:.1} |",
-                        m.t_start, m.t_end, m.region_min[0], m.region_max[0], m.region_min[1], m.region_max[1], m.phase, m.peak_error_mm
+                        m.t_start,
+                        m.t_end,
+                        m.region_min[0],
+                        m.region_max[0],
+                        m.region_min[1],
+                        m.region_max[1],
+                        m.phase,
+                        m.peak_error_mm
                     );
                 }
                 md.push('\n');
@@ -141,29 +162,66 @@ impl Report {
                     md,
                     "Moved by something outside the model: in these unexplained windows the object sped up with no modelled body touching it (an unmodelled push or agent; no candidate effect explains it):\n"
                 );
-                let _ = writeln!(md, "| from (s) | to (s) | region x (m) | region y (m) | peak error (mm) |\n|---|---|---|---|---|");
+                let _ = writeln!(
+                    md,
+                    "| from (s) | to (s) | region x (m) | region y (m) | peak error (mm) |\n|---|---|---|---|---|"
+                );
                 for m in driven {
-                    let _ = writeln!(md, "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {:.1} |", m.t_start, m.t_end, m.region_min[0], m.region_max[0], m.region_min[1], m.region_max[1], m.peak_error_mm);
+                    let _ = writeln!(
+                        md,
+                        "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {:.1} |",
+                        m.t_start,
+                        m.t_end,
+                        m.region_min[0],
+                        m.region_max[0],
+                        m.region_min[1],
+                        m.region_max[1],
+                        m.peak_error_mm
+                    );
                 }
                 md.push('\n');
             }
-            if o.effect == "none" && let Some(by) = &o.explained_by {
-                let _ = writeln!(md, "**Name.** No missing physics of its own: its mismatches are explained by {by}.\n");
+            if o.effect == "none"
+                && let Some(by) = &o.explained_by
+            {
+                let _ = writeln!(
+                    md,
+                    "**Name.** No missing physics of its own: its mismatches are explained by {by}.\n"
+                );
             } else if o.effect == "none" {
-                let _ = writeln!(md, "**Name.** No significant missing physics: no candidate effect cuts the held-out 1 s prediction error enough.\n");
+                let _ = writeln!(
+                    md,
+                    "**Name.** No significant missing physics: no candidate effect cuts the held-out 1 s prediction error enough.\n"
+                );
             } else {
                 let params: Vec<String> = o
                     .parameters
                     .iter()
                     .map(|p| match (p.low, p.high) {
-                        (Some(l), Some(h)) => format!("{} = {:.4} {} (95 % interval {:.4} .. {:.4})", p.name, p.value, p.unit, l, h),
+                        (Some(l), Some(h)) => format!(
+                            "{} = {:.4} {} (95 % interval {:.4} .. {:.4})",
+                            p.name, p.value, p.unit, l, h
+                        ),
                         _ => format!("{} = {:.4} {}", p.name, p.value, p.unit),
                     })
                     .collect();
-                let _ = writeln!(md, "**Name.** Missing effect: **{}**; {}.", o.effect, params.join("; "));
-                let _ = write!(md, "It removes {:.0} % of the held-out open-loop error", o.explained_fraction * 100.0);
+                let _ = writeln!(
+                    md,
+                    "**Name.** Missing effect: **{}**; {}.",
+                    o.effect,
+                    params.join("; ")
+                );
+                let _ = write!(
+                    md,
+                    "It removes {:.0} % of the held-out open-loop error",
+                    o.explained_fraction * 100.0
+                );
                 if let Some(f) = o.residual_explained_fraction {
-                    let _ = write!(md, " and explains {:.0} % of the held-out corrective force", f * 100.0);
+                    let _ = write!(
+                        md,
+                        " and explains {:.0} % of the held-out corrective force",
+                        f * 100.0
+                    );
                 }
                 md.push_str(".\n\n");
                 if let Some(n) = &o.named_fit {
@@ -174,8 +232,15 @@ impl Report {
                     );
                 }
             }
-            let _ = writeln!(md, "Candidates (fitted open loop on {} windows before {:.2} s, judged on {} after):\n", o.train_windows, o.heldout_from, o.heldout_windows);
-            let _ = writeln!(md, "| effect | parameter | value | 95 % interval | fit gain | held-out gain |\n|---|---|---|---|---|---|");
+            let _ = writeln!(
+                md,
+                "Candidates (fitted open loop on {} windows before {:.2} s, judged on {} after):\n",
+                o.train_windows, o.heldout_from, o.heldout_windows
+            );
+            let _ = writeln!(
+                md,
+                "| effect | parameter | value | 95 % interval | fit gain | held-out gain |\n|---|---|---|---|---|---|"
+            );
             for c in &o.candidates {
                 let _ = writeln!(
                     md,
@@ -197,16 +262,32 @@ impl Report {
                 "\nResidual regression (corrective force on candidate effects, held-out RMS {:.3} -> {:.3} N): {}.\n",
                 r.heldout_rms_before,
                 r.heldout_rms_after,
-                if named.is_empty() { "nothing significant".to_string() } else { named.join(", ") }
+                if named.is_empty() {
+                    "nothing significant".to_string()
+                } else {
+                    named.join(", ")
+                }
             );
             let _ = writeln!(md, "**Show.** Held-out part, before -> after:\n");
             let _ = writeln!(md, "| metric | before | after |\n|---|---|---|");
-            let _ = writeln!(md, "| open-loop error at 1 s (mm) | {:.1} | {:.1} |", o.before.open_loop_error_mm, o.after.open_loop_error_mm);
-            let _ = writeln!(md, "| corrective effort (N) | {:.3} | {:.3} |", o.before.corrective_effort_n, o.after.corrective_effort_n);
+            let _ = writeln!(
+                md,
+                "| open-loop error at 1 s (mm) | {:.1} | {:.1} |",
+                o.before.open_loop_error_mm, o.after.open_loop_error_mm
+            );
+            let _ = writeln!(
+                md,
+                "| corrective effort (N) | {:.3} | {:.3} |",
+                o.before.corrective_effort_n, o.after.corrective_effort_n
+            );
             if let (Some(b), Some(a)) = (o.before.tracking_error_mm, o.after.tracking_error_mm) {
                 let _ = writeln!(md, "| tracking error (mm) | {b:.1} | {a:.1} |");
             }
-            let _ = writeln!(md, "\n![residual over time]({0}_residual.png)\n![residual vs feature]({0}_feature.png)\n![paths]({0}_paths.png)\n", o.object);
+            let _ = writeln!(
+                md,
+                "\n![residual over time]({0}_residual.png)\n![residual vs feature]({0}_feature.png)\n![paths]({0}_paths.png)\n",
+                o.object
+            );
         }
         md
     }

@@ -49,7 +49,11 @@ pub struct SelectOptions {
 
 impl Default for SelectOptions {
     fn default() -> Self {
-        Self { train_fraction: 0.7, min_gain: 0.1, min_t: 3.0 }
+        Self {
+            train_fraction: 0.7,
+            min_gain: 0.1,
+            min_t: 3.0,
+        }
     }
 }
 
@@ -100,7 +104,11 @@ fn sse(r: &Rows, beta: Option<&DVector<f64>>) -> f64 {
 fn standard_errors(r: &Rows, beta: &DVector<f64>, x: &DMatrix<f64>) -> Option<Vec<f64>> {
     let n = r.y.len();
     let k = beta.len();
-    let residual: Vec<f64> = r.y.iter().zip(&r.x).map(|(y, row)| y - row.iter().zip(beta.iter()).map(|(a, c)| a * c).sum::<f64>()).collect();
+    let residual: Vec<f64> =
+        r.y.iter()
+            .zip(&r.x)
+            .map(|(y, row)| y - row.iter().zip(beta.iter()).map(|(a, c)| a * c).sum::<f64>())
+            .collect();
     let sigma2 = residual.iter().map(|e| e * e).sum::<f64>() / (n - k) as f64;
     // Rows interleave three streams (f_x, f_y, tau_z): autocorrelation at a lag of one sample.
     let (mut num, mut den) = (0.0, 0.0);
@@ -110,11 +118,19 @@ fn standard_errors(r: &Rows, beta: &DVector<f64>, x: &DMatrix<f64>) -> Option<Ve
             num += residual[i] * residual[i + 3];
         }
     }
-    let rho = if den > 0.0 { (num / den).clamp(0.0, 0.95) } else { 0.0 };
+    let rho = if den > 0.0 {
+        (num / den).clamp(0.0, 0.95)
+    } else {
+        0.0
+    };
     let widen = ((1.0 + rho) / (1.0 - rho)).sqrt();
     let xtx = x.transpose() * x;
     let inv = xtx.try_inverse()?;
-    Some((0..k).map(|j| (sigma2 * inv[(j, j)]).max(0.0).sqrt() * widen).collect())
+    Some(
+        (0..k)
+            .map(|j| (sigma2 * inv[(j, j)]).max(0.0).sqrt() * widen)
+            .collect(),
+    )
 }
 
 /// Select the candidates that explain the samples' corrective forces.
@@ -132,15 +148,21 @@ pub fn select(samples: &[Sample], candidates: &[Candidate], opts: SelectOptions)
         for &c in candidates.iter().filter(|c| !chosen.contains(c)) {
             let mut set = chosen.clone();
             set.push(c);
-            let Some((beta, x)) = solve(&rows(train, &set)) else { continue };
-            let Some(se) = standard_errors(&rows(train, &set), &beta, &x) else { continue };
+            let Some((beta, x)) = solve(&rows(train, &set)) else {
+                continue;
+            };
+            let Some(se) = standard_errors(&rows(train, &set), &beta, &x) else {
+                continue;
+            };
             // The newcomer's coefficients are the last ones.
             let n_new = c.coefficients().len();
             let first = beta.len() - n_new;
             let new: Vec<f64> = beta.iter().skip(first).copied().collect();
             // Its strongest coefficient must be significant (a constant force along one axis has
             // a zero partner), and the whole fit plausible.
-            let t_max = (first..beta.len()).map(|j| (beta[j] / se[j].max(1e-12)).abs()).fold(0.0, f64::max);
+            let t_max = (first..beta.len())
+                .map(|j| (beta[j] / se[j].max(1e-12)).abs())
+                .fold(0.0, f64::max);
             if t_max < opts.min_t || !c.plausible(&new) {
                 continue;
             }
@@ -158,7 +180,8 @@ pub fn select(samples: &[Sample], candidates: &[Candidate], opts: SelectOptions)
     let all: Vec<&Sample> = ordered.clone();
     let mut found = Vec::new();
     if let Some((beta, x)) = solve(&rows(&all, &chosen)) {
-        let se = standard_errors(&rows(&all, &chosen), &beta, &x).unwrap_or_else(|| vec![f64::NAN; beta.len()]);
+        let se = standard_errors(&rows(&all, &chosen), &beta, &x)
+            .unwrap_or_else(|| vec![f64::NAN; beta.len()]);
         let mut j = 0;
         for (c, gain) in chosen.iter().zip(&gains) {
             let coefficients = c
@@ -167,14 +190,30 @@ pub fn select(samples: &[Sample], candidates: &[Candidate], opts: SelectOptions)
                 .map(|(name, unit)| {
                     let (value, e) = (beta[j], se[j]);
                     j += 1;
-                    Coefficient { name: name.to_string(), unit: unit.to_string(), value, low: value - 1.96 * e, high: value + 1.96 * e }
+                    Coefficient {
+                        name: name.to_string(),
+                        unit: unit.to_string(),
+                        value,
+                        low: value - 1.96 * e,
+                        high: value + 1.96 * e,
+                    }
                 })
                 .collect();
-            found.push(Found { effect: c.name().to_string(), coefficients, explained_fraction: *gain });
+            found.push(Found {
+                effect: c.name().to_string(),
+                coefficients,
+                explained_fraction: *gain,
+            });
         }
     }
     let n_held = (heldout.len() * 3).max(1) as f64;
-    Selection { found, train_samples: train.len(), heldout_samples: heldout.len(), heldout_rms_before: (base / n_held).sqrt(), heldout_rms_after: (current / n_held).sqrt() }
+    Selection {
+        found,
+        train_samples: train.len(),
+        heldout_samples: heldout.len(),
+        heldout_rms_before: (base / n_held).sqrt(),
+        heldout_rms_after: (current / n_held).sqrt(),
+    }
 }
 
 #[cfg(test)]
@@ -198,8 +237,16 @@ mod tests {
         let mut out = Vec::new();
         for k in 0..450 {
             let t = k as f32 * dt;
-            let velocity = Vec3::new(0.12 * (0.7 * t).sin() + 0.05 * (2.3 * t).cos(), 0.1 * (0.5 * t + 1.0).cos() - 0.03, 0.0);
-            let acceleration = Vec3::new(0.084 * (0.7 * t).cos() - 0.115 * (2.3 * t).sin(), -0.05 * (0.5 * t + 1.0).sin(), 0.0);
+            let velocity = Vec3::new(
+                0.12 * (0.7 * t).sin() + 0.05 * (2.3 * t).cos(),
+                0.1 * (0.5 * t + 1.0).cos() - 0.03,
+                0.0,
+            );
+            let acceleration = Vec3::new(
+                0.084 * (0.7 * t).cos() - 0.115 * (2.3 * t).sin(),
+                -0.05 * (0.5 * t + 1.0).sin(),
+                0.0,
+            );
             position += velocity * dt;
             let mut s = Sample {
                 t: t as f64,
@@ -228,40 +275,111 @@ mod tests {
 
     #[test]
     fn drag_is_named_with_its_coefficient_and_an_interval_that_covers_it() {
-        let sel = select(&recording(|s| (-0.8 * Vec3::new(s.velocity.x, s.velocity.y, 0.0), 0.0), 1), &ALL, SelectOptions::default());
+        let sel = select(
+            &recording(
+                |s| (-0.8 * Vec3::new(s.velocity.x, s.velocity.y, 0.0), 0.0),
+                1,
+            ),
+            &ALL,
+            SelectOptions::default(),
+        );
         let f = only(&sel);
         assert_eq!(f.effect, "viscous_drag");
         let c = &f.coefficients[0];
-        assert!((c.value - 0.8).abs() < 0.04 && c.low < 0.8 && c.high > 0.8, "{c:?}");
-        assert!(f.explained_fraction > 0.5 && sel.heldout_rms_after < 0.5 * sel.heldout_rms_before, "{sel:?}");
+        assert!(
+            (c.value - 0.8).abs() < 0.04 && c.low < 0.8 && c.high > 0.8,
+            "{c:?}"
+        );
+        assert!(
+            f.explained_fraction > 0.5 && sel.heldout_rms_after < 0.5 * sel.heldout_rms_before,
+            "{sel:?}"
+        );
     }
 
     #[test]
     fn a_tilt_is_a_constant_force_and_a_tether_a_spring() {
-        let sel = select(&recording(|_| (Vec3::new(0.3, -0.1, 0.0), 0.0), 2), &ALL, SelectOptions::default());
+        let sel = select(
+            &recording(|_| (Vec3::new(0.3, -0.1, 0.0), 0.0), 2),
+            &ALL,
+            SelectOptions::default(),
+        );
         let f = only(&sel);
         assert_eq!(f.effect, "constant_force");
-        assert!((f.coefficients[0].value - 0.3).abs() < 0.01 && (f.coefficients[1].value + 0.1).abs() < 0.01, "{f:?}");
+        assert!(
+            (f.coefficients[0].value - 0.3).abs() < 0.01
+                && (f.coefficients[1].value + 0.1).abs() < 0.01,
+            "{f:?}"
+        );
         let anchor = Vec3::new(0.45, 0.1, 0.0);
-        let sel = select(&recording(|s| (-2.5 * (Vec3::new(s.position.x, s.position.y, 0.0) - anchor), 0.0), 3), &ALL, SelectOptions::default());
+        let sel = select(
+            &recording(
+                |s| {
+                    (
+                        -2.5 * (Vec3::new(s.position.x, s.position.y, 0.0) - anchor),
+                        0.0,
+                    )
+                },
+                3,
+            ),
+            &ALL,
+            SelectOptions::default(),
+        );
         let f = only(&sel);
         assert_eq!(f.effect, "spring");
         let k = f.coefficients[0].value;
         assert!((k - 2.5).abs() < 0.25, "{f:?}");
-        assert!(((f.coefficients[1].value / k) - 0.45).abs() < 0.01 && ((f.coefficients[2].value / k) - 0.1).abs() < 0.01, "anchor {f:?}");
+        assert!(
+            ((f.coefficients[1].value / k) - 0.45).abs() < 0.01
+                && ((f.coefficients[2].value / k) - 0.1).abs() < 0.01,
+            "anchor {f:?}"
+        );
     }
 
     #[test]
     fn friction_mass_and_angular_damping_are_told_apart() {
-        let sel = select(&recording(|s| (-0.15 * s.mass * 9.81 * Vec3::new(s.velocity.x, s.velocity.y, 0.0).normalize(), 0.0), 4), &ALL, SelectOptions::default());
+        let sel = select(
+            &recording(
+                |s| {
+                    (
+                        -0.15
+                            * s.mass
+                            * 9.81
+                            * Vec3::new(s.velocity.x, s.velocity.y, 0.0).normalize(),
+                        0.0,
+                    )
+                },
+                4,
+            ),
+            &ALL,
+            SelectOptions::default(),
+        );
         let f = only(&sel);
         assert_eq!(f.effect, "ground_friction");
         assert!((f.coefficients[0].value - 0.15).abs() < 0.01, "{f:?}");
-        let sel = select(&recording(|s| (-0.2 * Vec3::new(s.acceleration.x, s.acceleration.y, 0.0), 0.0), 5), &ALL, SelectOptions::default());
+        let sel = select(
+            &recording(
+                |s| {
+                    (
+                        -0.2 * Vec3::new(s.acceleration.x, s.acceleration.y, 0.0),
+                        0.0,
+                    )
+                },
+                5,
+            ),
+            &ALL,
+            SelectOptions::default(),
+        );
         let f = only(&sel);
         assert_eq!(f.effect, "mass_error");
         assert!((f.coefficients[0].value - 0.2).abs() < 0.03, "{f:?}");
-        let sel = select(&recording(|s| (Vec3::ZERO, -3.0 * s.inertia_z * s.angular_velocity.z), 6), &ALL, SelectOptions::default());
+        let sel = select(
+            &recording(
+                |s| (Vec3::ZERO, -3.0 * s.inertia_z * s.angular_velocity.z),
+                6,
+            ),
+            &ALL,
+            SelectOptions::default(),
+        );
         let f = only(&sel);
         assert_eq!(f.effect, "angular_damping");
         assert!((f.coefficients[0].value - 3.0).abs() < 0.3, "{f:?}");
@@ -270,7 +388,11 @@ mod tests {
     #[test]
     fn noise_alone_names_nothing() {
         for seed in 10..15 {
-            let sel = select(&recording(|_| (Vec3::ZERO, 0.0), seed), &ALL, SelectOptions::default());
+            let sel = select(
+                &recording(|_| (Vec3::ZERO, 0.0), seed),
+                &ALL,
+                SelectOptions::default(),
+            );
             assert!(sel.found.is_empty(), "seed {seed}: {:#?}", sel.found);
         }
     }

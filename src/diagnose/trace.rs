@@ -26,7 +26,12 @@ pub struct State {
 
 impl State {
     pub fn of(world: &World) -> Self {
-        Self { time: world.time, position: world.particles.position.clone(), velocity: world.particles.velocity.clone(), pose: world.shapes.pose.clone() }
+        Self {
+            time: world.time,
+            position: world.particles.position.clone(),
+            velocity: world.particles.velocity.clone(),
+            pose: world.shapes.pose.clone(),
+        }
     }
 }
 
@@ -64,16 +69,28 @@ impl Trace {
         let s = &self.states[k];
         world.time = s.time;
         world.particles.position.clone_from(&s.position);
-        let (a, b) = (k.saturating_sub(VELOCITY_SPAN), (k + VELOCITY_SPAN).min(self.states.len() - 1));
+        let (a, b) = (
+            k.saturating_sub(VELOCITY_SPAN),
+            (k + VELOCITY_SPAN).min(self.states.len() - 1),
+        );
         let span = (self.states[b].time - self.states[a].time) as f32;
         world.particles.velocity = if span > 0.0 {
-            self.states[b].position.iter().zip(&self.states[a].position).map(|(p, q)| (*p - *q) / span).collect()
+            self.states[b]
+                .position
+                .iter()
+                .zip(&self.states[a].position)
+                .map(|(p, q)| (*p - *q) / span)
+                .collect()
         } else {
             s.velocity.clone()
         };
         world.shapes.pose.clone_from(&s.pose);
         world.shapes.target.clone_from(&s.pose);
-        world.particles.external_force.iter_mut().for_each(|f| *f = Vec3::ZERO);
+        world
+            .particles
+            .external_force
+            .iter_mut()
+            .for_each(|f| *f = Vec3::ZERO);
         world
     }
 
@@ -87,23 +104,44 @@ impl Trace {
     /// Predict `horizon` ticks from each state in `starts` with `physics` alone and measure the
     /// error against the tracked states. A prediction the physics refuses (a parameter that makes
     /// no sense) is an error.
-    pub fn predict(&self, physics: &PhysicsConfig, object: ShapeId, starts: &[usize], horizon: usize) -> Result<Vec<Prediction>> {
+    pub fn predict(
+        &self,
+        physics: &PhysicsConfig,
+        object: ShapeId,
+        starts: &[usize],
+        horizon: usize,
+    ) -> Result<Vec<Prediction>> {
         starts
             .par_iter()
             .map(|&start| {
                 let end = (start + horizon).min(self.states.len() - 1);
                 let world = self.world_at(start);
                 let mut solver = Solver::new(physics.clone(), &world)?;
-                let mut scene = Scene { world, scripts: Vec::new(), robot: self.robot.clone() };
+                let mut scene = Scene {
+                    world,
+                    scripts: Vec::new(),
+                    robot: self.robot.clone(),
+                };
                 let range = self.base.shapes.range(object);
                 let n = range.len().max(1) as f32;
                 let mut path = vec![self.centroid(object, start)];
                 for _ in start..end {
                     scene.advance(&mut solver)?;
-                    path.push(scene.world.particles.position[range.clone()].iter().copied().sum::<Vec3>() / n);
+                    path.push(
+                        scene.world.particles.position[range.clone()]
+                            .iter()
+                            .copied()
+                            .sum::<Vec3>()
+                            / n,
+                    );
                 }
                 let tracked = &self.states[end].position[range.clone()];
-                let error = scene.world.particles.position[range].iter().zip(tracked).map(|(p, q)| p.distance(*q)).sum::<f32>() / n;
+                let error = scene.world.particles.position[range]
+                    .iter()
+                    .zip(tracked)
+                    .map(|(p, q)| p.distance(*q))
+                    .sum::<f32>()
+                    / n;
                 Ok(Prediction { start, error, path })
             })
             .collect::<Result<Vec<_>>>()
@@ -121,7 +159,14 @@ mod tests {
     #[test]
     fn open_loop_reproduces_its_own_physics_and_sees_a_missing_drag() {
         let mut b = WorldBuilder::new();
-        let s = b.add_rigid("box", &box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01), 0.005, 0.001, Pose::from_translation(Vec3::new(0.0, 0.0, 0.015)), Vec3::ONE);
+        let s = b.add_rigid(
+            "box",
+            &box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01),
+            0.005,
+            0.001,
+            Pose::from_translation(Vec3::new(0.0, 0.0, 0.015)),
+            Vec3::ONE,
+        );
         let mut world = b.build();
         for i in world.shapes.range(s) {
             world.particles.velocity[i] = Vec3::new(0.4, 0.0, 0.0);
@@ -129,7 +174,12 @@ mod tests {
         let mut physics = PhysicsConfig::default();
         physics.ground.static_friction = 0.04;
         physics.ground.kinetic_friction = 0.03;
-        let mut trace = Trace { base: world.clone(), physics: physics.clone(), robot: None, states: vec![State::of(&world)] };
+        let mut trace = Trace {
+            base: world.clone(),
+            physics: physics.clone(),
+            robot: None,
+            states: vec![State::of(&world)],
+        };
         let mut solver = Solver::new(physics.clone(), &world).unwrap();
         for _ in 0..45 {
             solver.step(&mut world).unwrap();
@@ -138,11 +188,22 @@ mod tests {
         // From states inside the trace (velocities centrally differenced) the replay is exact up
         // to the difference's error.
         let same = trace.predict(&physics, s, &[3, 8], 30).unwrap();
-        assert!(same.iter().all(|p| p.error < 2e-3 && p.path.len() == 31), "{:?}", same.iter().map(|p| p.error).collect::<Vec<_>>());
+        assert!(
+            same.iter().all(|p| p.error < 2e-3 && p.path.len() == 31),
+            "{:?}",
+            same.iter().map(|p| p.error).collect::<Vec<_>>()
+        );
         let mut dragged = physics.clone();
-        dragged.effects = vec![crate::physics::Effect::ViscousDrag { object: None, coefficient: 0.1 }];
+        dragged.effects = vec![crate::physics::Effect::ViscousDrag {
+            object: None,
+            coefficient: 0.1,
+        }];
         let short = trace.predict(&dragged, s, &[3], 30).unwrap();
         // The drag shortens the slide: the prediction ends behind the traced box.
-        assert!(short[0].error > 0.01 && short[0].path[30].x < trace.centroid(s, 33).x - 0.01, "{}", short[0].error);
+        assert!(
+            short[0].error > 0.01 && short[0].path[30].x < trace.centroid(s, 33).x - 0.01,
+            "{}",
+            short[0].error
+        );
     }
 }

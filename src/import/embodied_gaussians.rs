@@ -68,11 +68,25 @@ struct PlaneFile {
 
 /// A row-major 4x4 rigid transform as a `Pose`; rejects matrices that are not rigid.
 pub fn pose_from_rows(m: &[[f64; 4]; 4]) -> Result<Pose> {
-    let r = DMat3::from_cols(DVec3::new(m[0][0], m[1][0], m[2][0]), DVec3::new(m[0][1], m[1][1], m[2][1]), DVec3::new(m[0][2], m[1][2], m[2][2]));
+    let r = DMat3::from_cols(
+        DVec3::new(m[0][0], m[1][0], m[2][0]),
+        DVec3::new(m[0][1], m[1][1], m[2][1]),
+        DVec3::new(m[0][2], m[1][2], m[2][2]),
+    );
     let t = DVec3::new(m[0][3], m[1][3], m[2][3]);
-    let orthonormality = (r.transpose() * r - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |a, v| a.max(v.abs()));
-    if !t.is_finite() || orthonormality > 1e-3 || (r.determinant() - 1.0).abs() > 1e-3 || m[3] != [0.0, 0.0, 0.0, 1.0] {
-        bail!("not a rigid transform (rotation off by {orthonormality:.1e}, det {:.4})", r.determinant());
+    let orthonormality = (r.transpose() * r - DMat3::IDENTITY)
+        .to_cols_array()
+        .iter()
+        .fold(0.0f64, |a, v| a.max(v.abs()));
+    if !t.is_finite()
+        || orthonormality > 1e-3
+        || (r.determinant() - 1.0).abs() > 1e-3
+        || m[3] != [0.0, 0.0, 0.0, 1.0]
+    {
+        bail!(
+            "not a rigid transform (rotation off by {orthonormality:.1e}, det {:.4})",
+            r.determinant()
+        );
     }
     let q = DQuat::from_mat3(&r).normalize();
     Ok(Pose::new(t.as_vec3(), q.as_quat().normalize()))
@@ -108,8 +122,10 @@ pub fn ground_from_plane(p: [f64; 4]) -> Result<(Vec3, f32)> {
 }
 
 fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{} is not in the expected format", path.display()))
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    serde_json::from_str(&text)
+        .with_context(|| format!("{} is not in the expected format", path.display()))
 }
 
 /// Load an object file into the neutral object model (RGB colours, x,y,z,w quaternions).
@@ -117,11 +133,25 @@ pub fn load_object(path: &Path) -> Result<ObjectModel> {
     let f: ObjectFile = read_json(path)?;
     let g = &f.gaussians;
     let n = g.means.len();
-    if [g.quats.len(), g.scales.len(), g.opacities.len(), g.colors.len()].iter().any(|&k| k != n) {
-        bail!("{}: the Gaussian arrays have different lengths", path.display());
+    if [
+        g.quats.len(),
+        g.scales.len(),
+        g.opacities.len(),
+        g.colors.len(),
+    ]
+    .iter()
+    .any(|&k| k != n)
+    {
+        bail!(
+            "{}: the Gaussian arrays have different lengths",
+            path.display()
+        );
     }
     if f.particles.means.len() != f.particles.radii.len() || f.particles.means.is_empty() {
-        bail!("{}: particles need as many radii as means, and at least one", path.display());
+        bail!(
+            "{}: particles need as many radii as means, and at least one",
+            path.display()
+        );
     }
     let gaussians: Vec<BodyGaussian> = (0..n)
         .map(|i| BodyGaussian {
@@ -132,14 +162,36 @@ pub fn load_object(path: &Path) -> Result<ObjectModel> {
             colour: rgb_from_bgr(g.colors[i]),
         })
         .collect();
-    let particles: Vec<(Vec3, f32)> = f.particles.means.iter().zip(&f.particles.radii).map(|(m, r)| (Vec3::from_array(*m), *r)).collect();
-    let finite = gaussians.iter().all(|g| g.mean.is_finite() && g.rotation.is_finite() && g.scale.is_finite() && g.scale.min_element() > 0.0 && g.opacity.is_finite() && g.colour.is_finite())
-        && particles.iter().all(|(p, r)| p.is_finite() && r.is_finite() && *r > 0.0);
+    let particles: Vec<(Vec3, f32)> = f
+        .particles
+        .means
+        .iter()
+        .zip(&f.particles.radii)
+        .map(|(m, r)| (Vec3::from_array(*m), *r))
+        .collect();
+    let finite = gaussians.iter().all(|g| {
+        g.mean.is_finite()
+            && g.rotation.is_finite()
+            && g.scale.is_finite()
+            && g.scale.min_element() > 0.0
+            && g.opacity.is_finite()
+            && g.colour.is_finite()
+    }) && particles
+        .iter()
+        .all(|(p, r)| p.is_finite() && r.is_finite() && *r > 0.0);
     if !finite {
-        bail!("{}: non-finite or non-positive values in Gaussians or particles", path.display());
+        bail!(
+            "{}: non-finite or non-positive values in Gaussians or particles",
+            path.display()
+        );
     }
     let pose = pose_from_rows(&f.x_wb).with_context(|| format!("{}: X_WB", path.display()))?;
-    Ok(ObjectModel { name: f.name, pose, particles, gaussians })
+    Ok(ObjectModel {
+        name: f.name,
+        pose,
+        particles,
+        gaussians,
+    })
 }
 
 /// One camera of the layout, with its timestamps.
@@ -156,14 +208,28 @@ pub fn load_cameras(dir: &Path) -> Result<Vec<SourceCamera>> {
     let mut out = Vec::new();
     for (serial, entry) in entries {
         let meta: VideoMeta = read_json(&dir.join("videos").join(format!("{serial}.json")))?;
-        let pose = optical_from_opengl(&entry.x_wc).with_context(|| format!("cameras.json: camera {serial}"))?;
+        let pose = optical_from_opengl(&entry.x_wc)
+            .with_context(|| format!("cameras.json: camera {serial}"))?;
         let [w, h] = meta.resolution;
         let k = meta.k;
         if w == 0 || h == 0 || !(k[0][0] > 0.0 && k[1][1] > 0.0) {
             bail!("videos/{serial}.json: invalid intrinsics or resolution");
         }
-        let camera = Camera::from_opencv(w, h, k[0][0] as f32, k[1][1] as f32, k[0][2] as f32, k[1][2] as f32, pose.inverse());
-        out.push(SourceCamera { serial: serial.clone(), camera, timestamps: meta.timestamps, video: dir.join("videos").join(format!("{serial}.mp4")) });
+        let camera = Camera::from_opencv(
+            w,
+            h,
+            k[0][0] as f32,
+            k[1][1] as f32,
+            k[0][2] as f32,
+            k[1][2] as f32,
+            pose.inverse(),
+        );
+        out.push(SourceCamera {
+            serial: serial.clone(),
+            camera,
+            timestamps: meta.timestamps,
+            video: dir.join("videos").join(format!("{serial}.mp4")),
+        });
     }
     if out.is_empty() {
         bail!("{}: cameras.json lists no camera", dir.display());
@@ -187,13 +253,25 @@ impl VideoFrames {
         let mut child = std::process::Command::new("ffmpeg")
             .args(["-v", "error", "-nostdin", "-i"])
             .arg(path)
-            .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", &format!("{width}x{height}"), "pipe:1"])
+            .args([
+                "-f",
+                "rawvideo",
+                "-pix_fmt",
+                "rgb24",
+                "-s",
+                &format!("{width}x{height}"),
+                "pipe:1",
+            ])
             .stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::inherit())
             .spawn()
             .context("cannot run ffmpeg (install it: apt-get install ffmpeg)")?;
         let stdout = child.stdout.take().context("ffmpeg has no stdout")?;
-        Ok(Self { child, stdout, frame_bytes: (3 * width * height) as usize })
+        Ok(Self {
+            child,
+            stdout,
+            frame_bytes: (3 * width * height) as usize,
+        })
     }
 
     /// The next frame, or None at the end of the video.
@@ -239,7 +317,12 @@ pub struct ImportOptions {
 
 impl Default for ImportOptions {
     fn default() -> Self {
-        Self { start: 0.0, duration: None, max_rate: 30.0, progress: true }
+        Self {
+            start: 0.0,
+            duration: None,
+            max_rate: 30.0,
+            progress: true,
+        }
     }
 }
 
@@ -254,27 +337,70 @@ pub struct ImportReport {
 
 /// The HSV band of the saturated orange of the sample data's T-block.
 pub fn orange_mask() -> ColourMask {
-    ColourMask { hue_min: 0.0, hue_max: 30.0, saturation_min: 0.55, value_min: 0.35 }
+    ColourMask {
+        hue_min: 0.0,
+        hue_max: 30.0,
+        saturation_min: 0.55,
+        value_min: 0.35,
+    }
 }
 
 /// Convert the layout in `dir` into a recording (images, camera info, /tf_static) and a replay
 /// configuration: every `*.json` object file in `dir` (except the camera files) becomes an object
 /// aligned at the start by `mask`, the ground plane comes from `ground_plane.json`, and a table
 /// fitted to the first frames covers the extent of `ground.npy`.
-pub fn import(dir: &Path, recording: &Path, config_out: &Path, opts: &ImportOptions) -> Result<ImportReport> {
+pub fn import(
+    dir: &Path,
+    recording: &Path,
+    config_out: &Path,
+    opts: &ImportOptions,
+) -> Result<ImportReport> {
     let cameras = load_cameras(dir)?;
-    let dir_abs = dir.canonicalize().with_context(|| format!("cannot resolve {}", dir.display()))?;
-    let mut report = ImportReport { frames_per_camera: BTreeMap::new(), first_stamp: f64::INFINITY, last_stamp: f64::NEG_INFINITY, warnings: Vec::new() };
-    let t0 = cameras.iter().filter_map(|c| c.timestamps.first().copied()).fold(f64::INFINITY, f64::min);
+    let dir_abs = dir
+        .canonicalize()
+        .with_context(|| format!("cannot resolve {}", dir.display()))?;
+    let mut report = ImportReport {
+        frames_per_camera: BTreeMap::new(),
+        first_stamp: f64::INFINITY,
+        last_stamp: f64::NEG_INFINITY,
+        warnings: Vec::new(),
+    };
+    let t0 = cameras
+        .iter()
+        .filter_map(|c| c.timestamps.first().copied())
+        .fold(f64::INFINITY, f64::min);
     if !t0.is_finite() {
         bail!("no camera has timestamps");
     }
-    let (from, to) = (t0 + opts.start, opts.duration.map_or(f64::INFINITY, |d| t0 + opts.start + d));
+    let (from, to) = (
+        t0 + opts.start,
+        opts.duration.map_or(f64::INFINITY, |d| t0 + opts.start + d),
+    );
     let mut rec = RecordingWriter::create(recording)?;
-    let named: Vec<(String, Camera)> = cameras.iter().map(|c| (camera_name(&c.serial), c.camera)).collect();
-    rec.write(record::TF_STATIC, msgs::schema::tf_message(), Time::from_seconds(from), &record::optical_frames_tf(&named))?;
-    let total: usize = cameras.iter().map(|c| c.timestamps.iter().filter(|t| (from..=to).contains(*t)).count()).sum();
-    let progress = if opts.progress { indicatif::ProgressBar::new(total as u64) } else { indicatif::ProgressBar::hidden() };
+    let named: Vec<(String, Camera)> = cameras
+        .iter()
+        .map(|c| (camera_name(&c.serial), c.camera))
+        .collect();
+    rec.write(
+        record::TF_STATIC,
+        msgs::schema::tf_message(),
+        Time::from_seconds(from),
+        &record::optical_frames_tf(&named),
+    )?;
+    let total: usize = cameras
+        .iter()
+        .map(|c| {
+            c.timestamps
+                .iter()
+                .filter(|t| (from..=to).contains(*t))
+                .count()
+        })
+        .sum();
+    let progress = if opts.progress {
+        indicatif::ProgressBar::new(total as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
     for c in &cameras {
         let name = camera_name(&c.serial);
         let frame_id = record::optical_frame(&name);
@@ -287,19 +413,39 @@ pub fn import(dir: &Path, recording: &Path, config_out: &Path, opts: &ImportOpti
             if t > to {
                 break;
             }
-            let Some(frame) = video.next_frame().with_context(|| format!("decoding {}", c.video.display()))? else {
-                report.warnings.push(format!("{}: video has {k} frames, its JSON {} timestamps", c.serial, c.timestamps.len()));
+            let Some(frame) = video
+                .next_frame()
+                .with_context(|| format!("decoding {}", c.video.display()))?
+            else {
+                report.warnings.push(format!(
+                    "{}: video has {k} frames, its JSON {} timestamps",
+                    c.serial,
+                    c.timestamps.len()
+                ));
                 break;
             };
             decoded += 1;
-            if t < from || !t.is_finite() || (opts.max_rate > 0.0 && t - last_kept < 1.0 / opts.max_rate - 1e-3) {
+            if t < from
+                || !t.is_finite()
+                || (opts.max_rate > 0.0 && t - last_kept < 1.0 / opts.max_rate - 1e-3)
+            {
                 continue;
             }
             if !wrote_info {
-                rec.write(&record::info_topic(&name), msgs::schema::camera_info(), Time::from_seconds(t), &record::camera_info(&c.camera, t, &frame_id))?;
+                rec.write(
+                    &record::info_topic(&name),
+                    msgs::schema::camera_info(),
+                    Time::from_seconds(t),
+                    &record::camera_info(&c.camera, t, &frame_id),
+                )?;
                 wrote_info = true;
             }
-            rec.write(&record::image_topic(&name), msgs::schema::image(), Time::from_seconds(t), &record::rgb8(c.camera.width, c.camera.height, frame, t, &frame_id))?;
+            rec.write(
+                &record::image_topic(&name),
+                msgs::schema::image(),
+                Time::from_seconds(t),
+                &record::rgb8(c.camera.width, c.camera.height, frame, t, &frame_id),
+            )?;
             last_kept = t;
             kept += 1;
             report.first_stamp = report.first_stamp.min(t);
@@ -307,14 +453,19 @@ pub fn import(dir: &Path, recording: &Path, config_out: &Path, opts: &ImportOpti
             progress.inc(1);
         }
         if decoded == c.timestamps.len() && video.next_frame()?.is_some() {
-            report.warnings.push(format!("{}: the video has more frames than its {} timestamps; the extra ones are dropped", c.serial, c.timestamps.len()));
+            report.warnings.push(format!(
+                "{}: the video has more frames than its {} timestamps; the extra ones are dropped",
+                c.serial,
+                c.timestamps.len()
+            ));
         }
         report.frames_per_camera.insert(name, kept);
     }
     progress.finish_and_clear();
     rec.finish()?;
     let config = import_config(&dir_abs)?;
-    std::fs::write(config_out, config.to_yaml()?).with_context(|| format!("cannot write {}", config_out.display()))?;
+    std::fs::write(config_out, config.to_yaml()?)
+        .with_context(|| format!("cannot write {}", config_out.display()))?;
     Ok(report)
 }
 
@@ -326,15 +477,27 @@ pub fn import_config(dir: &Path) -> Result<Config> {
     config.physics.ground.normal = normal;
     config.physics.ground.height = height;
     let mut objects = Vec::new();
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)?.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.extension().is_some_and(|e| e == "json")).collect();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "json"))
+        .collect();
     files.sort();
     for path in files {
-        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or_default();
+        let stem = path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or_default();
         if matches!(stem, "cameras" | "extrinsics" | "ground_plane") {
             continue;
         }
         let object = load_object(&path)?;
-        objects.push(ObjectConfig { name: object.name, embodied_gaussians: path.clone(), mask: Some(orange_mask()), mass: 0.5, ..Default::default() });
+        objects.push(ObjectConfig {
+            name: object.name,
+            embodied_gaussians: path.clone(),
+            mask: Some(orange_mask()),
+            mass: 0.5,
+            ..Default::default()
+        });
     }
     if objects.is_empty() {
         bail!("{}: no object file", dir.display());
@@ -348,7 +511,11 @@ pub fn import_config(dir: &Path) -> Result<Config> {
             lo = lo.min(p.truncate());
             hi = hi.max(p.truncate());
         }
-        config.scene.table = Some(TableConfig { min: lo, max: hi, ..Default::default() });
+        config.scene.table = Some(TableConfig {
+            min: lo,
+            max: hi,
+            ..Default::default()
+        });
     }
     // The arm is not modelled (no joint trajectory in the source): pixels that neither the
     // objects nor the table explain are occluders, left out of the photometric loss. Its pushes
@@ -381,19 +548,37 @@ pub fn read_npy_points(path: &Path) -> Result<Vec<Vec3>> {
     // Version 1 has a 2-byte header length, versions 2 and 3 a 4-byte one.
     let (header_len, start) = match bytes[6] {
         1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
+        2 | 3 if bytes.len() >= 12 => (
+            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            12,
+        ),
         _ => bail!(bad()),
     };
-    let header = std::str::from_utf8(bytes.get(start..start + header_len).with_context(bad)?).with_context(bad)?;
+    let header = std::str::from_utf8(bytes.get(start..start + header_len).with_context(bad)?)
+        .with_context(bad)?;
     let compact: String = header.chars().filter(|c| !c.is_whitespace()).collect();
     if !compact.contains("'descr':'<f8'") || !compact.contains("'fortran_order':False") {
-        bail!("{}: only little-endian float64 in C order is supported ({header})", bad());
+        bail!(
+            "{}: only little-endian float64 in C order is supported ({header})",
+            bad()
+        );
     }
     let data = &bytes[start + header_len..];
     if data.len() % 24 != 0 || !compact.contains(&format!("'shape':({},3)", data.len() / 24)) {
-        bail!("{}: shape is not ({}, 3) ({header})", bad(), data.len() / 24);
+        bail!(
+            "{}: shape is not ({}, 3) ({header})",
+            bad(),
+            data.len() / 24
+        );
     }
-    Ok(data.chunks_exact(24).map(|c| Vec3::from_array(std::array::from_fn(|k| f64::from_le_bytes(c[8 * k..8 * k + 8].try_into().unwrap_or_default()) as f32))).collect())
+    Ok(data
+        .chunks_exact(24)
+        .map(|c| {
+            Vec3::from_array(std::array::from_fn(|k| {
+                f64::from_le_bytes(c[8 * k..8 * k + 8].try_into().unwrap_or_default()) as f32
+            }))
+        })
+        .collect())
 }
 
 #[cfg(test)]
@@ -403,7 +588,12 @@ mod tests {
     #[test]
     fn opengl_camera_becomes_an_optical_frame_looking_along_its_minus_z() {
         // An OpenGL camera at (1, 2, 3) looking down the world -z axis with +y up in the image.
-        let gl = [[1.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, 2.0], [0.0, 0.0, 1.0, 3.0], [0.0, 0.0, 0.0, 1.0]];
+        let gl = [
+            [1.0, 0.0, 0.0, 1.0],
+            [0.0, 1.0, 0.0, 2.0],
+            [0.0, 0.0, 1.0, 3.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
         let optical = optical_from_opengl(&gl).unwrap();
         assert!((optical.translation - Vec3::new(1.0, 2.0, 3.0)).length() < 1e-6);
         // Optical z (forward) is world -z, optical y (image down) is world -y.
@@ -420,12 +610,27 @@ mod tests {
     #[test]
     fn quaternions_colours_and_planes_convert_to_ros_conventions() {
         let q = quat_from_wxyz([0.0, 0.0, 0.0, 1.0]);
-        assert!((q * Vec3::X - Vec3::NEG_X).length() < 1e-6, "w,x,y,z = 0,0,0,1 is a half turn about z");
+        assert!(
+            (q * Vec3::X - Vec3::NEG_X).length() < 1e-6,
+            "w,x,y,z = 0,0,0,1 is a half turn about z"
+        );
         assert_eq!(rgb_from_bgr([0.1, 0.2, 0.9]), Vec3::new(0.9, 0.2, 0.1));
         let (n, h) = ground_from_plane([0.0, 0.0, -2.0, 0.02]).unwrap();
-        assert!((n - Vec3::Z).length() < 1e-6 && (h - 0.01).abs() < 1e-7, "{n} {h}: the plane z = 0.01, normal up");
+        assert!(
+            (n - Vec3::Z).length() < 1e-6 && (h - 0.01).abs() < 1e-7,
+            "{n} {h}: the plane z = 0.01, normal up"
+        );
         assert!(ground_from_plane([0.0, 0.0, 0.0, 1.0]).is_err());
-        assert!(pose_from_rows(&[[2.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]).is_err(), "scaled matrices are rejected");
+        assert!(
+            pose_from_rows(&[
+                [2.0, 0.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0, 0.0],
+                [0.0, 0.0, 1.0, 0.0],
+                [0.0, 0.0, 0.0, 1.0]
+            ])
+            .is_err(),
+            "scaled matrices are rejected"
+        );
     }
 
     #[test]
@@ -433,7 +638,8 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("pegs-npy-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let write = |name: &str, descr: &str, rows: usize| {
-            let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': ({rows}, 3), }}");
+            let mut header =
+                format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': ({rows}, 3), }}");
             while (10 + header.len() + 1) % 64 != 0 {
                 header.push(' ');
             }
@@ -449,7 +655,10 @@ mod tests {
             p
         };
         let points = read_npy_points(&write("ok.npy", "<f8", 2)).unwrap();
-        assert_eq!(points, vec![Vec3::new(0.0, 0.5, 1.0), Vec3::new(1.5, 2.0, 2.5)]);
+        assert_eq!(
+            points,
+            vec![Vec3::new(0.0, 0.5, 1.0), Vec3::new(1.5, 2.0, 2.5)]
+        );
         assert!(read_npy_points(&write("f4.npy", "<f4", 2)).is_err());
         std::fs::write(dir.join("junk.npy"), b"hello").unwrap();
         assert!(read_npy_points(&dir.join("junk.npy")).is_err());

@@ -82,7 +82,11 @@ fn mask_centre_on_plane(views: &[MaskView], centre: Vec3, normal: Vec3) -> Optio
             continue;
         }
         let c = &v.camera;
-        let dir_cam = Vec3::new(((u / n as f64) as f32 - c.cx) / c.fx, ((w / n as f64) as f32 - c.cy) / c.fy, 1.0);
+        let dir_cam = Vec3::new(
+            ((u / n as f64) as f32 - c.cx) / c.fx,
+            ((w / n as f64) as f32 - c.cy) / c.fy,
+            1.0,
+        );
         let to_world = c.world_to_camera.inverse();
         let (origin, dir) = (to_world.translation, to_world.rotation * dir_cam);
         let denom = dir.dot(normal);
@@ -99,7 +103,13 @@ fn mask_centre_on_plane(views: &[MaskView], centre: Vec3, normal: Vec3) -> Optio
 }
 
 /// Align `shape` on the ground plane (unit `normal`) to the masks, and move it there.
-pub fn align_on_table(world: &mut World, shape: ShapeId, views: &[MaskView], normal: Vec3, render: &RenderSettings) -> Alignment {
+pub fn align_on_table(
+    world: &mut World,
+    shape: ShapeId,
+    views: &[MaskView],
+    normal: Vec3,
+    render: &RenderSettings,
+) -> Alignment {
     let clock = std::time::Instant::now();
     let ids = world.gaussians_of(shape);
     let cloud = GaussianCloud::from_world_where(world, |i| ids.binary_search(&i).is_ok());
@@ -113,11 +123,33 @@ pub fn align_on_table(world: &mut World, shape: ShapeId, views: &[MaskView], nor
         .map(|v| {
             let c = v.camera;
             let (mask, w, h) = downsample(&v.mask, c.width, c.height);
-            (Camera { width: w, height: h, fx: c.fx / 2.0, fy: c.fy / 2.0, cx: c.cx / 2.0, cy: c.cy / 2.0, world_to_camera: c.world_to_camera }, mask)
+            (
+                Camera {
+                    width: w,
+                    height: h,
+                    fx: c.fx / 2.0,
+                    fy: c.fy / 2.0,
+                    cx: c.cx / 2.0,
+                    cy: c.cy / 2.0,
+                    world_to_camera: c.world_to_camera,
+                },
+                mask,
+            )
         })
         .collect();
-    let mut renderer = CpuRenderer::new(RenderSettings { background: Vec3::ZERO, ..render.clone() });
-    let mut search = Search { cloud, centre, normal, axes, views: half, renderer: &mut renderer, evaluations: 0 };
+    let mut renderer = CpuRenderer::new(RenderSettings {
+        background: Vec3::ZERO,
+        ..render.clone()
+    });
+    let mut search = Search {
+        cloud,
+        centre,
+        normal,
+        axes,
+        views: half,
+        renderer: &mut renderer,
+        evaluations: 0,
+    };
     let iou_before = search.score([0.0; 3]);
     let start = mask_centre_on_plane(views, centre, normal).map_or([0.0, 0.0], |p| {
         let d = p - centre;
@@ -162,14 +194,27 @@ pub struct SilhouetteFit {
 /// Fit the opacities and sizes of `shape`'s Gaussians (not their positions) so that its rendered
 /// coverage matches the masks (Adam on the squared difference of alpha and mask over a window
 /// around the object; `ignore` leaves out pixels where something unmodelled stands in front).
-pub fn fit_silhouette(world: &mut World, shape: ShapeId, views: &[MaskView], ignore: &[Vec<bool>], steps: u32, render: &RenderSettings) -> anyhow::Result<SilhouetteFit> {
+pub fn fit_silhouette(
+    world: &mut World,
+    shape: ShapeId,
+    views: &[MaskView],
+    ignore: &[Vec<bool>],
+    steps: u32,
+    render: &RenderSettings,
+) -> anyhow::Result<SilhouetteFit> {
     use crate::correct::adam::Adam;
     use crate::render::{PixelGrads, footprint_roi};
     let ids = world.gaussians_of(shape);
     let mut cloud = GaussianCloud::from_world_where(world, |i| ids.binary_search(&i).is_ok());
     let all: Vec<usize> = (0..cloud.len()).collect();
-    let windows: Vec<Roi> = views.iter().map(|v| footprint_roi(&cloud, &all, &v.camera, 8.0)).collect();
-    let mut renderer = CpuRenderer::new(RenderSettings { background: Vec3::ZERO, ..render.clone() });
+    let windows: Vec<Roi> = views
+        .iter()
+        .map(|v| footprint_roi(&cloud, &all, &v.camera, 8.0))
+        .collect();
+    let mut renderer = CpuRenderer::new(RenderSettings {
+        background: Vec3::ZERO,
+        ..render.clone()
+    });
     let n = cloud.len();
     let (mut adam_o, mut adam_s) = (Adam::new(0.9, 0.999, 1e-8), Adam::new(0.9, 0.999, 1e-8));
     adam_o.reset(n);
@@ -177,7 +222,10 @@ pub fn fit_silhouette(world: &mut World, shape: ShapeId, views: &[MaskView], ign
     let mut opacity: Vec<f32> = cloud.opacity_logit.clone();
     let mut scale: Vec<f32> = cloud.log_scale.iter().flat_map(|s| s.to_array()).collect();
     let start_scale = scale.clone();
-    let mut fit = SilhouetteFit { steps, ..Default::default() };
+    let mut fit = SilhouetteFit {
+        steps,
+        ..Default::default()
+    };
     for step in 0..=steps {
         for i in 0..n {
             cloud.opacity_logit[i] = opacity[i];
@@ -194,7 +242,10 @@ pub fn fit_silhouette(world: &mut World, shape: ShapeId, views: &[MaskView], ign
             let mut d_alpha = vec![0.0f32; w.pixels()];
             for y in w.y0..w.y1 {
                 for x in w.x0..w.x1 {
-                    let (k, full_k) = (((y - w.y0) * w.width() + x - w.x0) as usize, (y * v.camera.width + x) as usize);
+                    let (k, full_k) = (
+                        ((y - w.y0) * w.width() + x - w.x0) as usize,
+                        (y * v.camera.width + x) as usize,
+                    );
                     if skip[full_k] {
                         continue;
                     }
@@ -204,11 +255,22 @@ pub fn fit_silhouette(world: &mut World, shape: ShapeId, views: &[MaskView], ign
                     d_alpha[k] = 2.0 * (a - m as u8 as f32) / w.pixels() as f32;
                 }
             }
-            iou_sum += if union == 0 { 1.0 } else { inter as f32 / union as f32 };
+            iou_sum += if union == 0 {
+                1.0
+            } else {
+                inter as f32 / union as f32
+            };
             if step == steps {
                 continue;
             }
-            let g = renderer.backward(&cloud, &PixelGrads { colour: vec![Vec3::ZERO; w.pixels()], alpha: d_alpha, ..Default::default() })?;
+            let g = renderer.backward(
+                &cloud,
+                &PixelGrads {
+                    colour: vec![Vec3::ZERO; w.pixels()],
+                    alpha: d_alpha,
+                    ..Default::default()
+                },
+            )?;
             for i in 0..n {
                 g_o[i] += g.opacity_logit[i];
                 for j in 0..3 {
@@ -272,8 +334,20 @@ mod tests {
     #[test]
     fn a_t_block_placed_off_and_turned_is_found_from_its_masks() {
         let cams = [
-            Camera::look_at(320, 240, 300.0, Vec3::new(0.6, 0.0, 0.5), Vec3::new(0.0, 0.0, 0.0)),
-            Camera::look_at(320, 240, 300.0, Vec3::new(-0.2, 0.55, 0.45), Vec3::new(0.0, 0.0, 0.0)),
+            Camera::look_at(
+                320,
+                240,
+                300.0,
+                Vec3::new(0.6, 0.0, 0.5),
+                Vec3::new(0.0, 0.0, 0.0),
+            ),
+            Camera::look_at(
+                320,
+                240,
+                300.0,
+                Vec3::new(-0.2, 0.55, 0.45),
+                Vec3::new(0.0, 0.0, 0.0),
+            ),
         ];
         let truth_pose = Pose::new(Vec3::new(0.02, -0.01, 0.02), Quat::from_rotation_z(0.5));
         let lattice = t_block_lattice(0.2, 0.05, 0.04, 0.01);
@@ -286,13 +360,31 @@ mod tests {
         let mut renderer = CpuRenderer::new(RenderSettings::default());
         let views: Vec<MaskView> = cams
             .iter()
-            .map(|c| MaskView { camera: *c, mask: renderer.forward(&GaussianCloud::from_world(&truth), c, Roi::full(c)).alpha.iter().map(|a| *a > 0.5).collect() })
+            .map(|c| MaskView {
+                camera: *c,
+                mask: renderer
+                    .forward(&GaussianCloud::from_world(&truth), c, Roi::full(c))
+                    .alpha
+                    .iter()
+                    .map(|a| *a > 0.5)
+                    .collect(),
+            })
             .collect();
         // Start 9 cm and 40 degrees away.
-        let (mut world, _) = build(Pose::new(Vec3::new(0.08, 0.03, 0.02), Quat::from_rotation_z(0.5 + 40f32.to_radians())));
+        let (mut world, _) = build(Pose::new(
+            Vec3::new(0.08, 0.03, 0.02),
+            Quat::from_rotation_z(0.5 + 40f32.to_radians()),
+        ));
         let a = align_on_table(&mut world, s, &views, Vec3::Z, &RenderSettings::default());
         assert!(a.iou_before < 0.4 && a.iou_after > 0.9, "{a:?}");
-        let error = world.shapes.range(s).map(|i| world.particles.position[i].distance(truth.particles.position[i])).fold(0.0, f32::max);
-        assert!(error < 0.004, "largest particle error {error} m after {a:?}");
+        let error = world
+            .shapes
+            .range(s)
+            .map(|i| world.particles.position[i].distance(truth.particles.position[i]))
+            .fold(0.0, f32::max);
+        assert!(
+            error < 0.004,
+            "largest particle error {error} m after {a:?}"
+        );
     }
 }

@@ -35,7 +35,11 @@ pub fn hsv(c: Vec3) -> (f32, f32, f32) {
 impl ColourMask {
     pub fn contains(&self, c: Vec3) -> bool {
         let (h, s, v) = hsv(c);
-        let in_band = if self.hue_min <= self.hue_max { (self.hue_min..=self.hue_max).contains(&h) } else { h >= self.hue_min || h <= self.hue_max };
+        let in_band = if self.hue_min <= self.hue_max {
+            (self.hue_min..=self.hue_max).contains(&h)
+        } else {
+            h >= self.hue_min || h <= self.hue_max
+        };
         in_band && s >= self.saturation_min && v >= self.value_min
     }
 
@@ -80,7 +84,10 @@ impl ColourMask {
             sizes.push(size);
         }
         let largest = sizes.iter().copied().max().unwrap_or(0);
-        let keep: Vec<bool> = sizes.iter().map(|&s| s > 0 && s >= 20 && s * 10 >= largest).collect();
+        let keep: Vec<bool> = sizes
+            .iter()
+            .map(|&s| s > 0 && s >= 20 && s * 10 >= largest)
+            .collect();
         label.iter().map(|&l| l != 0 && keep[l as usize]).collect()
     }
 }
@@ -92,7 +99,11 @@ pub fn iou(a: &[bool], b: &[bool]) -> f32 {
         inter += (x && y) as usize;
         union += (x || y) as usize;
     }
-    if union == 0 { 1.0 } else { inter as f32 / union as f32 }
+    if union == 0 {
+        1.0
+    } else {
+        inter as f32 / union as f32
+    }
 }
 
 /// Halve a mask's resolution: a pixel is set when any of its 2 x 2 source pixels is.
@@ -119,10 +130,21 @@ mod tests {
         assert_eq!(hsv(Vec3::new(0.0, 0.0, 1.0)).0, 240.0);
         let (h, s, v) = hsv(Vec3::new(1.0, 0.5, 0.0));
         assert!((h - 30.0).abs() < 1e-4 && s == 1.0 && v == 1.0);
-        let reds = ColourMask { hue_min: 340.0, hue_max: 20.0, saturation_min: 0.5, value_min: 0.3 };
-        assert!(reds.contains(Vec3::new(0.9, 0.1, 0.2)), "hue 353 is inside the wrapping band");
+        let reds = ColourMask {
+            hue_min: 340.0,
+            hue_max: 20.0,
+            saturation_min: 0.5,
+            value_min: 0.3,
+        };
+        assert!(
+            reds.contains(Vec3::new(0.9, 0.1, 0.2)),
+            "hue 353 is inside the wrapping band"
+        );
         assert!(reds.contains(Vec3::new(0.9, 0.2, 0.1)));
-        assert!(!reds.contains(Vec3::new(0.9, 0.8, 0.8)), "pale: not saturated");
+        assert!(
+            !reds.contains(Vec3::new(0.9, 0.8, 0.8)),
+            "pale: not saturated"
+        );
         assert!(!reds.contains(Vec3::new(0.2, 0.02, 0.02)), "too dark");
         assert!(!reds.contains(Vec3::new(0.1, 0.9, 0.1)));
     }
@@ -130,7 +152,12 @@ mod tests {
     #[test]
     fn segmenting_drops_small_stray_regions_and_keeps_a_split_object() {
         let red = Vec3::new(0.9, 0.1, 0.1);
-        let mask = ColourMask { hue_min: 340.0, hue_max: 20.0, saturation_min: 0.5, value_min: 0.3 };
+        let mask = ColourMask {
+            hue_min: 340.0,
+            hue_max: 20.0,
+            saturation_min: 0.5,
+            value_min: 0.3,
+        };
         let (w, h) = (40u32, 20u32);
         let mut image = vec![Vec3::splat(0.1); (w * h) as usize];
         let mut paint = |x0: u32, x1: u32, y0: u32, y1: u32| {
@@ -154,7 +181,11 @@ mod tests {
         let b = [false, true, true, false];
         assert!((iou(&a, &b) - 1.0 / 3.0).abs() < 1e-6);
         assert_eq!(iou(&[false; 4], &[false; 4]), 1.0);
-        let (d, w, h) = downsample(&[false, false, true, false, false, false, false, false], 4, 2);
+        let (d, w, h) = downsample(
+            &[false, false, true, false, false, false, false, false],
+            4,
+            2,
+        );
         assert_eq!((d, w, h), (vec![false, true], 2, 1));
     }
 }

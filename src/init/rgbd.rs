@@ -38,7 +38,10 @@ impl RgbdFrame<'_> {
             return None;
         }
         let c = &self.camera;
-        let (u, v) = ((k as u32 % c.width) as f32 + 0.5, (k as u32 / c.width) as f32 + 0.5);
+        let (u, v) = (
+            (k as u32 % c.width) as f32 + 0.5,
+            (k as u32 / c.width) as f32 + 0.5,
+        );
         let p = Vec3::new((u - c.cx) / c.fx * d, (v - c.cy) / c.fy * d, d);
         Some(c.world_to_camera.inverse().transform_point(p))
     }
@@ -46,29 +49,51 @@ impl RgbdFrame<'_> {
 
 /// A plane `normal . p = height` fitted by RANSAC: the plane through three random points with the
 /// most points within `tolerance`, refined by least squares on its inliers.
-pub fn ground_ransac(points: &[Vec3], iterations: usize, tolerance: f32, seed: u64) -> Option<(Vec3, f32, usize)> {
+pub fn ground_ransac(
+    points: &[Vec3],
+    iterations: usize,
+    tolerance: f32,
+    seed: u64,
+) -> Option<(Vec3, f32, usize)> {
     if points.len() < 3 {
         return None;
     }
-    let mut state = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    let mut state = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
     let mut next = |n: usize| {
-        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((state >> 33) as usize) % n
     };
     let mut best: Option<(Vec3, f32, usize)> = None;
     for _ in 0..iterations {
-        let (a, b, c) = (points[next(points.len())], points[next(points.len())], points[next(points.len())]);
-        let Some(n) = (b - a).cross(c - a).try_normalize() else { continue };
+        let (a, b, c) = (
+            points[next(points.len())],
+            points[next(points.len())],
+            points[next(points.len())],
+        );
+        let Some(n) = (b - a).cross(c - a).try_normalize() else {
+            continue;
+        };
         let n = if n.z < 0.0 { -n } else { n };
         let h = n.dot(a);
-        let count = points.iter().filter(|p| (n.dot(**p) - h).abs() < tolerance).count();
+        let count = points
+            .iter()
+            .filter(|p| (n.dot(**p) - h).abs() < tolerance)
+            .count();
         if best.is_none_or(|(_, _, k)| count > k) {
             best = Some((n, h, count));
         }
     }
     let (n, h, _) = best?;
     // Least squares on the inliers: the normal is the direction of least spread.
-    let inliers: Vec<Vec3> = points.iter().copied().filter(|p| (n.dot(*p) - h).abs() < tolerance).collect();
+    let inliers: Vec<Vec3> = points
+        .iter()
+        .copied()
+        .filter(|p| (n.dot(*p) - h).abs() < tolerance)
+        .collect();
     let centre = inliers.iter().copied().sum::<Vec3>() / inliers.len() as f32;
     let mut cov = glam::Mat3::ZERO;
     for p in &inliers {
@@ -76,14 +101,20 @@ pub fn ground_ransac(points: &[Vec3], iterations: usize, tolerance: f32, seed: u
         cov += glam::Mat3::from_cols(d * d.x, d * d.y, d * d.z);
     }
     let refined = smallest_eigenvector(cov, n);
-    let refined = if refined.dot(n) < 0.0 { -refined } else { refined };
+    let refined = if refined.dot(n) < 0.0 {
+        -refined
+    } else {
+        refined
+    };
     Some((refined, refined.dot(centre), inliers.len()))
 }
 
 /// Eigenvector of the smallest eigenvalue of a symmetric positive semi-definite matrix, by inverse
 /// iteration from `guess`.
 fn smallest_eigenvector(m: glam::Mat3, guess: Vec3) -> Vec3 {
-    let shifted = m + glam::Mat3::from_diagonal(Vec3::splat(1e-9 + 1e-6 * m.x_axis.x.abs().max(m.y_axis.y.abs()).max(m.z_axis.z.abs())));
+    let shifted = m + glam::Mat3::from_diagonal(Vec3::splat(
+        1e-9 + 1e-6 * m.x_axis.x.abs().max(m.y_axis.y.abs()).max(m.z_axis.z.abs()),
+    ));
     let inv = shifted.inverse();
     let mut v = guess.normalize();
     for _ in 0..20 {
@@ -98,7 +129,13 @@ fn smallest_eigenvector(m: glam::Mat3, guess: Vec3) -> Vec3 {
 /// distance (breadth first over neighbouring cells) from the cell farthest from an arbitrary start
 /// orders them along the rope, which is cut into as many stretches as particles of `2 * radius`
 /// fit its length; each particle is the mean of its stretch.
-pub fn rope_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Vec3, f32), radius: f32) -> Result<(Vec<Vec3>, Vec3)> {
+pub fn rope_from_rgbd(
+    name: &str,
+    label: u8,
+    frames: &[RgbdFrame],
+    ground: (Vec3, f32),
+    radius: f32,
+) -> Result<(Vec<Vec3>, Vec3)> {
     use std::collections::{HashMap, VecDeque};
     let (normal, height) = (ground.0.normalize(), ground.1);
     let e1 = normal.any_orthonormal_vector();
@@ -115,7 +152,9 @@ pub fn rope_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Vec3
             seen += 1;
             if let Some(p) = f.point(k) {
                 let q = Vec2::new(p.dot(e1), p.dot(e2));
-                let cell = cells.entry((q / radius).floor().as_ivec2()).or_insert((Vec2::ZERO, 0));
+                let cell = cells
+                    .entry((q / radius).floor().as_ivec2())
+                    .or_insert((Vec2::ZERO, 0));
                 cell.0 += q;
                 cell.1 += 1;
             }
@@ -124,7 +163,11 @@ pub fn rope_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Vec3
     if cells.len() < 2 {
         bail!("rope '{name}' (label {label}): too few depth points in its masks");
     }
-    let neighbours = |c: glam::IVec2| (-1..=1).flat_map(move |dy| (-1..=1).map(move |dx| c + glam::IVec2::new(dx, dy))).filter(move |n| *n != c);
+    let neighbours = |c: glam::IVec2| {
+        (-1..=1)
+            .flat_map(move |dy| (-1..=1).map(move |dx| c + glam::IVec2::new(dx, dy)))
+            .filter(move |n| *n != c)
+    };
     let bfs = |start: glam::IVec2| {
         let mut dist: HashMap<glam::IVec2, f32> = HashMap::from([(start, 0.0)]);
         let mut queue = VecDeque::from([start]);
@@ -140,7 +183,11 @@ pub fn rope_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Vec3
     };
     let mut keys: Vec<glam::IVec2> = cells.keys().copied().collect();
     keys.sort_by_key(|c| (c.x, c.y));
-    let farthest = |d: &HashMap<glam::IVec2, f32>| d.iter().max_by(|a, b| a.1.total_cmp(b.1).then((b.0.x, b.0.y).cmp(&(a.0.x, a.0.y)))).map(|(c, _)| *c);
+    let farthest = |d: &HashMap<glam::IVec2, f32>| {
+        d.iter()
+            .max_by(|a, b| a.1.total_cmp(b.1).then((b.0.x, b.0.y).cmp(&(a.0.x, a.0.y))))
+            .map(|(c, _)| *c)
+    };
     let end = farthest(&bfs(keys[0])).context("empty rope")?;
     let along = bfs(end);
     // Cell centres span the rope's length less one cell; its particles touch end to end.
@@ -168,7 +215,15 @@ pub fn rope_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Vec3
 /// Instance labels without masks: the depth points more than `min_height` above the ground and
 /// farther than `clearance` from every point of `known` (e.g. the robot's particles), grouped into
 /// connected clusters on a grid of `cell` metres; label k + 1 marks the k-th largest cluster.
-pub fn cluster_labels(cameras: &[Camera], depths: &[&[f32]], ground: (Vec3, f32), known: &[Vec3], min_height: f32, clearance: f32, cell: f32) -> Vec<Vec<u8>> {
+pub fn cluster_labels(
+    cameras: &[Camera],
+    depths: &[&[f32]],
+    ground: (Vec3, f32),
+    known: &[Vec3],
+    min_height: f32,
+    clearance: f32,
+    cell: f32,
+) -> Vec<Vec<u8>> {
     use std::collections::HashMap;
     let key = |p: Vec3| (p / cell).floor().as_ivec3();
     let near_known: std::collections::HashSet<glam::IVec3> = {
@@ -190,7 +245,12 @@ pub fn cluster_labels(cameras: &[Camera], depths: &[&[f32]], ground: (Vec3, f32)
     let mut pixel_cells: Vec<Vec<Option<glam::IVec3>>> = Vec::new();
     let mut occupied: HashMap<glam::IVec3, usize> = HashMap::new();
     for (camera, depth) in cameras.iter().zip(depths) {
-        let frame = RgbdFrame { camera: *camera, colour: &[], depth, labels: &[] };
+        let frame = RgbdFrame {
+            camera: *camera,
+            colour: &[],
+            depth,
+            labels: &[],
+        };
         let cells: Vec<Option<glam::IVec3>> = (0..depth.len())
             .map(|k| {
                 let p = frame.point(k)?;
@@ -237,7 +297,15 @@ pub fn cluster_labels(cameras: &[Camera], depths: &[&[f32]], ground: (Vec3, f32)
     for (r, &c) in order.iter().enumerate().take(255) {
         rank[c] = r as u8 + 1;
     }
-    pixel_cells.iter().map(|cells| cells.iter().map(|c| c.map_or(0, |c| rank[component[&c]])).collect()).collect()
+    pixel_cells
+        .iter()
+        .map(|cells| {
+            cells
+                .iter()
+                .map(|c| c.map_or(0, |c| rank[component[&c]]))
+                .collect()
+        })
+        .collect()
 }
 
 /// How an object was found.
@@ -260,7 +328,15 @@ pub struct RgbdObjectReport {
 /// cannot see through inside its bounding box on the ground `normal . p = height`. `surface_inset`
 /// is how far below the true surface the depth measures it (0 for a depth camera; a Gaussian
 /// render's expected depth lies about one Gaussian deviation inside).
-pub fn object_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Vec3, f32), radius: f32, surface_inset: f32, render: &RenderSettings) -> Result<(ObjectModel, RgbdObjectReport)> {
+pub fn object_from_rgbd(
+    name: &str,
+    label: u8,
+    frames: &[RgbdFrame],
+    ground: (Vec3, f32),
+    radius: f32,
+    surface_inset: f32,
+    render: &RenderSettings,
+) -> Result<(ObjectModel, RgbdObjectReport)> {
     let clock = std::time::Instant::now();
     for f in frames {
         f.check()?;
@@ -273,7 +349,9 @@ pub fn object_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Ve
         for y in 1..h.saturating_sub(1) {
             for x in 1..w.saturating_sub(1) {
                 let k = y * w + x;
-                let interior = [k, k - 1, k + 1, k - w, k + w].iter().all(|&j| f.labels[j] == label);
+                let interior = [k, k - 1, k + 1, k - w, k + w]
+                    .iter()
+                    .all(|&j| f.labels[j] == label);
                 if interior && let Some(p) = f.point(k) {
                     points.push(p);
                 }
@@ -281,38 +359,61 @@ pub fn object_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Ve
         }
     }
     if points.len() < 10 {
-        bail!("object '{name}' (label {label}): only {} depth points in its masks", points.len());
+        bail!(
+            "object '{name}' (label {label}): only {} depth points in its masks",
+            points.len()
+        );
     }
     // Stray labels (a few pixels of something else) must not stretch the box: keep the points
     // within the bulk of the heights.
     let mut heights: Vec<f32> = points.iter().map(|p| normal.dot(*p) - height).collect();
     heights.sort_by(f32::total_cmp);
     let quantile = |v: &[f32], q: f32| v[((v.len() - 1) as f32 * q).round() as usize];
-    let (h_lo, h_hi) = (quantile(&heights, 0.005) - 2.0 * radius, quantile(&heights, 0.995) + 2.0 * radius);
+    let (h_lo, h_hi) = (
+        quantile(&heights, 0.005) - 2.0 * radius,
+        quantile(&heights, 0.995) + 2.0 * radius,
+    );
     points.retain(|p| (h_lo..=h_hi).contains(&(normal.dot(*p) - height)));
     // Oriented box standing on the ground: the in-plane turn with the smallest rectangle.
     let e1 = normal.any_orthonormal_vector();
     let e2 = normal.cross(e1);
-    let flat: Vec<Vec2> = points.iter().map(|p| Vec2::new(p.dot(e1), p.dot(e2))).collect();
+    let flat: Vec<Vec2> = points
+        .iter()
+        .map(|p| Vec2::new(p.dot(e1), p.dot(e2)))
+        .collect();
     // The rectangle of the points along each rotated axis.
     let rect = |angle: f32| {
         let (s, c) = angle.sin_cos();
         let u: Vec<f32> = flat.iter().map(|q| c * q.x + s * q.y).collect();
         let v: Vec<f32> = flat.iter().map(|q| -s * q.x + c * q.y).collect();
-        let u = [u.iter().copied().fold(f32::INFINITY, f32::min), u.iter().copied().fold(f32::NEG_INFINITY, f32::max)];
-        let v = [v.iter().copied().fold(f32::INFINITY, f32::min), v.iter().copied().fold(f32::NEG_INFINITY, f32::max)];
-        (Vec2::new(u[0], v[0]), Vec2::new(u[u.len() - 1], v[v.len() - 1]))
+        let u = [
+            u.iter().copied().fold(f32::INFINITY, f32::min),
+            u.iter().copied().fold(f32::NEG_INFINITY, f32::max),
+        ];
+        let v = [
+            v.iter().copied().fold(f32::INFINITY, f32::min),
+            v.iter().copied().fold(f32::NEG_INFINITY, f32::max),
+        ];
+        (
+            Vec2::new(u[0], v[0]),
+            Vec2::new(u[u.len() - 1], v[v.len() - 1]),
+        )
     };
-    let angle = (0..180).map(|k| (k as f32 * 0.5).to_radians()).min_by(|a, b| {
-        let area = |x: f32| {
-            let (lo, hi) = rect(x);
-            (hi - lo).x * (hi - lo).y
-        };
-        area(*a).total_cmp(&area(*b))
-    });
+    let angle = (0..180)
+        .map(|k| (k as f32 * 0.5).to_radians())
+        .min_by(|a, b| {
+            let area = |x: f32| {
+                let (lo, hi) = rect(x);
+                (hi - lo).x * (hi - lo).y
+            };
+            area(*a).total_cmp(&area(*b))
+        });
     let angle = angle.unwrap_or(0.0);
     let (lo, hi) = rect(angle);
-    let (lo, hi) = (lo - Vec2::splat(surface_inset), hi + Vec2::splat(surface_inset));
+    let (lo, hi) = (
+        lo - Vec2::splat(surface_inset),
+        hi + Vec2::splat(surface_inset),
+    );
     let top = quantile(&heights, 0.995) + surface_inset;
     let size = Vec3::new(hi.x - lo.x, hi.y - lo.y, top);
     let (s, c) = angle.sin_cos();
@@ -349,12 +450,21 @@ pub fn object_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Ve
             let p = pose.transform_point(*b);
             !frames.iter().any(|f| {
                 let (u, v, z) = f.camera.project(p);
-                if !(z > 0.0 && u >= 0.0 && v >= 0.0 && u < f.camera.width as f32 && v < f.camera.height as f32) {
+                if !(z > 0.0
+                    && u >= 0.0
+                    && v >= 0.0
+                    && u < f.camera.width as f32
+                    && v < f.camera.height as f32)
+                {
                     return false;
                 }
                 let k = (v as u32 * f.camera.width + u as u32) as usize;
                 let d = f.depth[k];
-                if d.is_finite() && d > 0.0 { d > z + tolerance } else { f.labels[k] != label }
+                if d.is_finite() && d > 0.0 {
+                    d > z + tolerance
+                } else {
+                    f.labels[k] != label
+                }
             })
         })
         .collect();
@@ -364,31 +474,75 @@ pub fn object_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Ve
     // One spherical Gaussian per cell, coloured from the images inside the object's masks.
     let mut cloud = GaussianCloud::default();
     let mean_colour = {
-        let (sum, n) = frames.iter().flat_map(|f| f.colour.iter().zip(f.labels)).filter(|(_, l)| **l == label).fold((Vec3::ZERO, 0usize), |(s, n), (c, _)| (s + *c, n + 1));
+        let (sum, n) = frames
+            .iter()
+            .flat_map(|f| f.colour.iter().zip(f.labels))
+            .filter(|(_, l)| **l == label)
+            .fold((Vec3::ZERO, 0usize), |(s, n), (c, _)| (s + *c, n + 1));
         sum / n.max(1) as f32
     };
     let sigma = 0.6 * radius;
     let q = Vec4::new(rotation.x, rotation.y, rotation.z, rotation.w);
     for b in &kept {
-        cloud.push(GaussianParams { mean: pose.transform_point(*b), rotation: q, log_scale: Vec3::splat(sigma.ln()), opacity_logit: logit(0.95), colour: mean_colour });
+        cloud.push(GaussianParams {
+            mean: pose.transform_point(*b),
+            rotation: q,
+            log_scale: Vec3::splat(sigma.ln()),
+            opacity_logit: logit(0.95),
+            colour: mean_colour,
+        });
     }
-    let object_render = RenderSettings { background: Vec3::ZERO, ..render.clone() };
-    let fit_frames: Vec<FitFrame> = frames.iter().map(|f| FitFrame { camera: f.camera, image: f.colour, ignore: f.labels.iter().map(|l| *l != label).collect() }).collect();
-    let colour_fit = fit_colours(&mut cloud, &fit_frames, 60, 0.05, 1.0, &object_render, false)?;
+    let object_render = RenderSettings {
+        background: Vec3::ZERO,
+        ..render.clone()
+    };
+    let fit_frames: Vec<FitFrame> = frames
+        .iter()
+        .map(|f| FitFrame {
+            camera: f.camera,
+            image: f.colour,
+            ignore: f.labels.iter().map(|l| *l != label).collect(),
+        })
+        .collect();
+    let colour_fit = fit_colours(
+        &mut cloud,
+        &fit_frames,
+        60,
+        0.05,
+        1.0,
+        &object_render,
+        false,
+    )?;
     // Rounds of Adam on the positions (photometric + mask loss), each followed by Jacobi steps that
     // keep the Gaussians, as particle-sized spheres, apart and above the ground.
-    let masks: Vec<Vec<bool>> = frames.iter().map(|f| f.labels.iter().map(|l| *l == label).collect()).collect();
+    let masks: Vec<Vec<bool>> = frames
+        .iter()
+        .map(|f| f.labels.iter().map(|l| *l == label).collect())
+        .collect();
     let refine = refine_positions(&mut cloud, frames, &masks, ground, radius, &object_render)?;
     // Particles at the Gaussians' locations.
     let inv = pose.inverse();
     let body: Vec<Vec3> = cloud.mean.iter().map(|m| inv.transform_point(*m)).collect();
     // Densify: the Gaussians of surface particles (a lattice neighbour missing) split into eight of
     // half the size for finer appearance, their colours fitted again; all bond to their particle.
-    let occupied: std::collections::HashSet<[i32; 3]> = kept.iter().map(|b| cell_key(*b, step)).collect();
-    let surface: Vec<bool> = kept.iter().map(|b| {
-        let k = cell_key(*b, step);
-        [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]].iter().any(|d| !occupied.contains(&[k[0] + d[0], k[1] + d[1], k[2] + d[2]]))
-    }).collect();
+    let occupied: std::collections::HashSet<[i32; 3]> =
+        kept.iter().map(|b| cell_key(*b, step)).collect();
+    let surface: Vec<bool> = kept
+        .iter()
+        .map(|b| {
+            let k = cell_key(*b, step);
+            [
+                [1, 0, 0],
+                [-1, 0, 0],
+                [0, 1, 0],
+                [0, -1, 0],
+                [0, 0, 1],
+                [0, 0, -1],
+            ]
+            .iter()
+            .any(|d| !occupied.contains(&[k[0] + d[0], k[1] + d[1], k[2] + d[2]]))
+        })
+        .collect();
     let mut dense = GaussianCloud::default();
     let mut owner = Vec::new();
     for (i, b) in body.iter().enumerate() {
@@ -399,14 +553,36 @@ pub fn object_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Ve
             continue;
         }
         for corner in 0..8 {
-            let o = Vec3::new(if corner & 1 == 0 { -0.5 } else { 0.5 }, if corner & 2 == 0 { -0.5 } else { 0.5 }, if corner & 4 == 0 { -0.5 } else { 0.5 }) * radius;
-            dense.push(GaussianParams { mean: pose.transform_point(*b + o), log_scale: Vec3::splat((sigma / 2.0).ln()), ..g });
+            let o = Vec3::new(
+                if corner & 1 == 0 { -0.5 } else { 0.5 },
+                if corner & 2 == 0 { -0.5 } else { 0.5 },
+                if corner & 4 == 0 { -0.5 } else { 0.5 },
+            ) * radius;
+            dense.push(GaussianParams {
+                mean: pose.transform_point(*b + o),
+                log_scale: Vec3::splat((sigma / 2.0).ln()),
+                ..g
+            });
             owner.push(i);
         }
     }
-    let densified = fit_colours(&mut dense, &fit_frames, 30, 0.03, 1.0, &object_render, false)?;
+    let densified = fit_colours(
+        &mut dense,
+        &fit_frames,
+        30,
+        0.03,
+        1.0,
+        &object_render,
+        false,
+    )?;
     let gaussians = (0..dense.len())
-        .map(|k| BodyGaussian { mean: inv.transform_point(dense.mean[k]), rotation: Quat::IDENTITY, scale: Vec3::splat(dense.log_scale[k].x.exp()), opacity: 0.95, colour: dense.colour[k] })
+        .map(|k| BodyGaussian {
+            mean: inv.transform_point(dense.mean[k]),
+            rotation: Quat::IDENTITY,
+            scale: Vec3::splat(dense.log_scale[k].x.exp()),
+            opacity: 0.95,
+            colour: dense.colour[k],
+        })
         .collect();
     let report = RgbdObjectReport {
         points: points.len(),
@@ -421,7 +597,15 @@ pub fn object_from_rgbd(name: &str, label: u8, frames: &[RgbdFrame], ground: (Ve
         seconds: clock.elapsed().as_secs_f64(),
     };
     let particles = body.iter().map(|b| (*b, radius)).collect();
-    Ok((ObjectModel { name: name.to_string(), pose, particles, gaussians }, report))
+    Ok((
+        ObjectModel {
+            name: name.to_string(),
+            pose,
+            particles,
+            gaussians,
+        },
+        report,
+    ))
 }
 
 fn cell_key(b: Vec3, step: f32) -> [i32; 3] {
@@ -442,19 +626,32 @@ pub struct RefineReport {
 /// error everywhere in the object's window), each followed by four Jacobi steps of sphere-sphere
 /// separation (radius `radius`) and ground non-penetration, and a clamp to half a radius from the
 /// start.
-fn refine_positions(cloud: &mut GaussianCloud, frames: &[RgbdFrame], masks: &[Vec<bool>], ground: (Vec3, f32), radius: f32, render: &RenderSettings) -> Result<RefineReport> {
+fn refine_positions(
+    cloud: &mut GaussianCloud,
+    frames: &[RgbdFrame],
+    masks: &[Vec<bool>],
+    ground: (Vec3, f32),
+    radius: f32,
+    render: &RenderSettings,
+) -> Result<RefineReport> {
     use crate::correct::adam::Adam;
     use crate::render::{PixelGrads, Roi, cpu::CpuRenderer, footprint_roi};
     const ROUNDS: u32 = 10;
     let n = cloud.len();
     let all: Vec<usize> = (0..n).collect();
     let start = cloud.mean.clone();
-    let windows: Vec<Roi> = frames.iter().map(|f| footprint_roi(cloud, &all, &f.camera, 6.0)).collect();
+    let windows: Vec<Roi> = frames
+        .iter()
+        .map(|f| footprint_roi(cloud, &all, &f.camera, 6.0))
+        .collect();
     let mut renderer = CpuRenderer::new(render.clone());
     let mut adam = Adam::new(0.9, 0.999, 1e-8);
     adam.reset(3 * n);
     let mut means: Vec<f32> = cloud.mean.iter().flat_map(|m| m.to_array()).collect();
-    let mut report = RefineReport { rounds: ROUNDS, ..Default::default() };
+    let mut report = RefineReport {
+        rounds: ROUNDS,
+        ..Default::default()
+    };
     for round in 0..=ROUNDS {
         for it in 0..5 {
             for i in 0..n {
@@ -467,14 +664,19 @@ fn refine_positions(cloud: &mut GaussianCloud, frames: &[RgbdFrame], masks: &[Ve
                     continue;
                 }
                 let out = renderer.forward(cloud, &f.camera, *w);
-                let (mut d_colour, mut d_alpha) = (vec![Vec3::ZERO; w.pixels()], vec![0.0f32; w.pixels()]);
+                let (mut d_colour, mut d_alpha) =
+                    (vec![Vec3::ZERO; w.pixels()], vec![0.0f32; w.pixels()]);
                 let (mut inter, mut union) = (0usize, 0usize);
                 for y in w.y0..w.y1 {
                     for x in w.x0..w.x1 {
-                        let (k, full) = (((y - w.y0) * w.width() + x - w.x0) as usize, (y * f.camera.width + x) as usize);
+                        let (k, full) = (
+                            ((y - w.y0) * w.width() + x - w.x0) as usize,
+                            (y * f.camera.width + x) as usize,
+                        );
                         let m = mask[full];
                         if m {
-                            d_colour[k] = 2.0 * (out.colour[k] - f.colour[full]) / w.pixels() as f32;
+                            d_colour[k] =
+                                2.0 * (out.colour[k] - f.colour[full]) / w.pixels() as f32;
                         }
                         d_alpha[k] = 2.0 * (out.alpha[k] - m as u8 as f32) / w.pixels() as f32;
                         inter += (out.alpha[k] > 0.5 && m) as usize;
@@ -483,7 +685,14 @@ fn refine_positions(cloud: &mut GaussianCloud, frames: &[RgbdFrame], masks: &[Ve
                 }
                 iou += inter as f32 / union.max(1) as f32 / frames.len() as f32;
                 if round < ROUNDS {
-                    let g = renderer.backward(cloud, &PixelGrads { colour: d_colour, alpha: d_alpha, ..Default::default() })?;
+                    let g = renderer.backward(
+                        cloud,
+                        &PixelGrads {
+                            colour: d_colour,
+                            alpha: d_alpha,
+                            ..Default::default()
+                        },
+                    )?;
                     for (i, gm) in g.mean.iter().enumerate() {
                         for j in 0..3 {
                             grad[3 * i + j] += gm[j];
@@ -512,14 +721,21 @@ fn refine_positions(cloud: &mut GaussianCloud, frames: &[RgbdFrame], masks: &[Ve
             let m = Vec3::from_slice(&means[3 * i..]);
             let d = m - *s0;
             if d.length() > 0.5 * radius {
-                means[3 * i..3 * i + 3].copy_from_slice(&(*s0 + d.normalize() * 0.5 * radius).to_array());
+                means[3 * i..3 * i + 3]
+                    .copy_from_slice(&(*s0 + d.normalize() * 0.5 * radius).to_array());
             }
         }
     }
     for i in 0..n {
         cloud.mean[i] = Vec3::from_slice(&means[3 * i..]);
     }
-    report.max_move_mm = cloud.mean.iter().zip(&start).map(|(a, b)| a.distance(*b)).fold(0.0, f32::max) * 1e3;
+    report.max_move_mm = cloud
+        .mean
+        .iter()
+        .zip(&start)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0, f32::max)
+        * 1e3;
     Ok(report)
 }
 
@@ -533,7 +749,9 @@ fn jacobi_separate(means: &mut [f32], radius: f32, ground: (Vec3, f32)) {
     let cell = 2.0 * radius;
     let mut grid: HashMap<[i32; 3], Vec<usize>> = HashMap::new();
     for i in 0..n {
-        grid.entry((p(i) / cell).floor().as_ivec3().to_array()).or_default().push(i);
+        grid.entry((p(i) / cell).floor().as_ivec3().to_array())
+            .or_default()
+            .push(i);
     }
     let mut delta = vec![Vec3::ZERO; n];
     let mut count = vec![0u32; n];
@@ -542,7 +760,10 @@ fn jacobi_separate(means: &mut [f32], radius: f32, ground: (Vec3, f32)) {
         for dz in -1..=1 {
             for dy in -1..=1 {
                 for dx in -1..=1 {
-                    let Some(others) = grid.get(&(c + glam::IVec3::new(dx, dy, dz)).to_array()) else { continue };
+                    let Some(others) = grid.get(&(c + glam::IVec3::new(dx, dy, dz)).to_array())
+                    else {
+                        continue;
+                    };
                     for &j in others {
                         if j <= i {
                             continue;
@@ -585,11 +806,20 @@ mod tests {
         let n = Vec3::new(0.01, -0.02, 1.0).normalize();
         let e1 = n.any_orthonormal_vector();
         let e2 = n.cross(e1);
-        let mut points: Vec<Vec3> = (0..400).map(|k| n * 0.03 + e1 * ((k % 20) as f32 * 0.05 - 0.5) + e2 * ((k / 20) as f32 * 0.05 - 0.5)).collect();
+        let mut points: Vec<Vec3> = (0..400)
+            .map(|k| {
+                n * 0.03 + e1 * ((k % 20) as f32 * 0.05 - 0.5) + e2 * ((k / 20) as f32 * 0.05 - 0.5)
+            })
+            .collect();
         // A box's worth of points above it.
-        points.extend((0..150).map(|k| Vec3::new(0.1 + (k % 10) as f32 * 0.01, (k / 10) as f32 * 0.01, 0.08)));
+        points.extend(
+            (0..150).map(|k| Vec3::new(0.1 + (k % 10) as f32 * 0.01, (k / 10) as f32 * 0.01, 0.08)),
+        );
         let (normal, height, inliers) = ground_ransac(&points, 200, 0.003, 7).unwrap();
         assert!(normal.angle_between(n) < 1e-3, "{normal} vs {n}");
-        assert!((height - 0.03).abs() < 1e-4 && inliers == 400, "{height} {inliers}");
+        assert!(
+            (height - 0.03).abs() < 1e-4 && inliers == 400,
+            "{height} {inliers}"
+        );
     }
 }

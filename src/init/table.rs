@@ -5,7 +5,9 @@
 use crate::config::{GroundConfig, TableConfig};
 use crate::correct::adam::Adam;
 use crate::render::cpu::CpuRenderer;
-use crate::render::{Camera, GaussianCloud, GaussianParams, PixelGrads, RenderSettings, Roi, logit};
+use crate::render::{
+    Camera, GaussianCloud, GaussianParams, PixelGrads, RenderSettings, Roi, logit,
+};
 use anyhow::{Result, bail};
 use glam::{Quat, Vec3, Vec4};
 use serde::Serialize;
@@ -35,7 +37,10 @@ pub fn table_disks(table: &TableConfig, ground: &GroundConfig, colour: Vec3) -> 
     let steps = |lo: f32, hi: f32| ((hi - lo) / table.spacing).floor().max(0.0) as usize + 1;
     for iy in 0..steps(table.min.y, table.max.y) {
         for ix in 0..steps(table.min.x, table.max.x) {
-            let (x, y) = (table.min.x + ix as f32 * table.spacing, table.min.y + iy as f32 * table.spacing);
+            let (x, y) = (
+                table.min.x + ix as f32 * table.spacing,
+                table.min.y + iy as f32 * table.spacing,
+            );
             // On the plane n . p = height, directly above or below (x, y).
             let z = (ground.height - table.drop - n.x * x - n.y * y) / n.z.max(1e-3);
             let sigma = 0.6 * table.spacing;
@@ -63,7 +68,12 @@ pub fn projected_colours(cloud: &GaussianCloud, frames: &[FitFrame]) -> Vec<Opti
             let mut cameras: Vec<Camera> = Vec::new();
             for f in frames {
                 let (u, v, z) = f.camera.project(p);
-                if z > 0.0 && u >= 0.0 && v >= 0.0 && (u as u32) < f.camera.width && (v as u32) < f.camera.height {
+                if z > 0.0
+                    && u >= 0.0
+                    && v >= 0.0
+                    && (u as u32) < f.camera.width
+                    && (v as u32) < f.camera.height
+                {
                     let k = (v as u32 * f.camera.width + u as u32) as usize;
                     if !f.ignore[k] {
                         samples.push(f.image[k]);
@@ -95,7 +105,15 @@ fn shrink(frame: &FitFrame, factor: u32) -> (Camera, Vec<Vec3>, Vec<bool>) {
     }
     let (w, h) = (c.width / factor, c.height / factor);
     let f = factor as f32;
-    let camera = Camera { width: w, height: h, fx: c.fx / f, fy: c.fy / f, cx: c.cx / f, cy: c.cy / f, world_to_camera: c.world_to_camera };
+    let camera = Camera {
+        width: w,
+        height: h,
+        fx: c.fx / f,
+        fy: c.fy / f,
+        cx: c.cx / f,
+        cy: c.cy / f,
+        world_to_camera: c.world_to_camera,
+    };
     let mut image = Vec::with_capacity((w * h) as usize);
     let mut ignore = Vec::with_capacity((w * h) as usize);
     for y in 0..h {
@@ -117,22 +135,47 @@ fn shrink(frame: &FitFrame, factor: u32) -> (Camera, Vec<Vec3>, Vec<bool>) {
 
 /// Fit the disks' colours to `frames`: start from the colours under their centres (disks no
 /// frame sees keep theirs), then `fit_colours`.
-pub fn fit_table(cloud: &mut GaussianCloud, frames: &[FitFrame], table: &TableConfig, render: &RenderSettings, progress: bool) -> Result<ColourFit> {
+pub fn fit_table(
+    cloud: &mut GaussianCloud,
+    frames: &[FitFrame],
+    table: &TableConfig,
+    render: &RenderSettings,
+    progress: bool,
+) -> Result<ColourFit> {
     let seen = projected_colours(cloud, frames);
     for (c, seen) in cloud.colour.iter_mut().zip(seen) {
         if let Some(seen) = seen {
             *c = seen;
         }
     }
-    fit_colours(cloud, frames, table.fit_steps, table.lr, table.fit_resolution, render, progress)
+    fit_colours(
+        cloud,
+        frames,
+        table.fit_steps,
+        table.lr,
+        table.fit_resolution,
+        render,
+        progress,
+    )
 }
 
 /// Fit the colours of a cloud to `frames` with Adam on a robust (smoothed L1) colour loss, at
 /// `resolution` times the cameras' size: where the cameras disagree about a Gaussian (something
 /// stood in front of it in one view), the majority wins.
-pub fn fit_colours(cloud: &mut GaussianCloud, frames: &[FitFrame], steps: u32, lr: f32, resolution: f32, render: &RenderSettings, progress: bool) -> Result<ColourFit> {
+pub fn fit_colours(
+    cloud: &mut GaussianCloud,
+    frames: &[FitFrame],
+    steps: u32,
+    lr: f32,
+    resolution: f32,
+    render: &RenderSettings,
+    progress: bool,
+) -> Result<ColourFit> {
     let clock = std::time::Instant::now();
-    if frames.iter().any(|f| f.image.len() != (f.camera.width * f.camera.height) as usize || f.ignore.len() != f.image.len()) {
+    if frames.iter().any(|f| {
+        f.image.len() != (f.camera.width * f.camera.height) as usize
+            || f.ignore.len() != f.image.len()
+    }) {
         bail!("table fit: an image or mask does not match its camera");
     }
     let factor = (1.0 / resolution.clamp(0.05, 1.0)).round() as u32;
@@ -157,8 +200,17 @@ pub fn fit_colours(cloud: &mut GaussianCloud, frames: &[FitFrame], steps: u32, l
             }
         };
         renderer.forward(cloud, camera, Roi::full(camera));
-        let ones: Vec<Vec3> = ignore.iter().map(|&i| if i { Vec3::ZERO } else { Vec3::ONE }).collect();
-        let g = renderer.backward(cloud, &PixelGrads { colour: ones, ..Default::default() })?;
+        let ones: Vec<Vec3> = ignore
+            .iter()
+            .map(|&i| if i { Vec3::ZERO } else { Vec3::ONE })
+            .collect();
+        let g = renderer.backward(
+            cloud,
+            &PixelGrads {
+                colour: ones,
+                ..Default::default()
+            },
+        )?;
         for (v, c) in visibility.iter_mut().zip(&g.colour) {
             v.resize(views.len(), 0.0);
             v[view] += c.x;
@@ -167,11 +219,27 @@ pub fn fit_colours(cloud: &mut GaussianCloud, frames: &[FitFrame], steps: u32, l
     // Fitted: Gaussians that two cameras see (one camera cannot tell the table from something
     // standing on it), or all of them when there is only one camera.
     let needed = views.len().min(2);
-    let fitted: Vec<bool> = visibility.iter().map(|v| v.iter().filter(|w| **w >= MIN_VISIBILITY).count() >= needed).collect();
-    let bar = if progress { indicatif::ProgressBar::new(steps as u64 + 1) } else { indicatif::ProgressBar::hidden() };
-    bar.set_style(indicatif::ProgressStyle::with_template("fitting colours of {prefix} Gaussians [{bar:30}] {pos}/{len} {elapsed}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+    let fitted: Vec<bool> = visibility
+        .iter()
+        .map(|v| v.iter().filter(|w| **w >= MIN_VISIBILITY).count() >= needed)
+        .collect();
+    let bar = if progress {
+        indicatif::ProgressBar::new(steps as u64 + 1)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "fitting colours of {prefix} Gaussians [{bar:30}] {pos}/{len} {elapsed}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
     bar.set_prefix(cloud.len().to_string());
-        let mut fit = ColourFit { gaussians: n, steps, ..Default::default() };
+    let mut fit = ColourFit {
+        gaussians: n,
+        steps,
+        ..Default::default()
+    };
     for step in 0..=steps {
         for (i, c) in cloud.colour.iter_mut().enumerate() {
             *c = Vec3::from_slice(&colours[3 * i..]);
@@ -193,7 +261,13 @@ pub fn fit_colours(cloud: &mut GaussianCloud, frames: &[FitFrame], steps: u32, l
             if step == steps {
                 continue;
             }
-            let g = renderer.backward(cloud, &PixelGrads { colour: d, ..Default::default() })?;
+            let g = renderer.backward(
+                cloud,
+                &PixelGrads {
+                    colour: d,
+                    ..Default::default()
+                },
+            )?;
             for (i, c) in g.colour.iter().enumerate() {
                 for j in 0..3 {
                     grad[3 * i + j] += c[j];
@@ -234,8 +308,20 @@ mod tests {
 
     #[test]
     fn disks_lie_on_a_tilted_ground_plane_and_take_the_colours_they_see() {
-        let ground = GroundConfig { normal: Vec3::new(0.02, 0.0, 1.0).normalize(), height: 0.01, ..Default::default() };
-        let table = TableConfig { min: Vec2::new(-0.2, -0.2), max: Vec2::new(0.2, 0.2), spacing: 0.02, fit_steps: 150, lr: 0.05, fit_resolution: 1.0, ..Default::default() };
+        let ground = GroundConfig {
+            normal: Vec3::new(0.02, 0.0, 1.0).normalize(),
+            height: 0.01,
+            ..Default::default()
+        };
+        let table = TableConfig {
+            min: Vec2::new(-0.2, -0.2),
+            max: Vec2::new(0.2, 0.2),
+            spacing: 0.02,
+            fit_steps: 150,
+            lr: 0.05,
+            fit_resolution: 1.0,
+            ..Default::default()
+        };
         let mut cloud = table_disks(&table, &ground, Vec3::splat(0.5));
         assert_eq!(cloud.len(), 21 * 21);
         for m in &cloud.mean {
@@ -248,19 +334,47 @@ mod tests {
         let mut ignore = vec![false; 1600];
         for y in 0..40 {
             for x in 0..40 {
-                image[y * 40 + x] = if x < 20 { Vec3::new(0.8, 0.1, 0.1) } else { Vec3::new(0.1, 0.1, 0.8) };
+                image[y * 40 + x] = if x < 20 {
+                    Vec3::new(0.8, 0.1, 0.1)
+                } else {
+                    Vec3::new(0.1, 0.1, 0.8)
+                };
                 if (6..12).contains(&x) && (16..24).contains(&y) {
                     image[y * 40 + x] = Vec3::new(0.0, 1.0, 0.0);
                     ignore[y * 40 + x] = true;
                 }
             }
         }
-        let fit = fit_table(&mut cloud, &[FitFrame { camera: cam, image: &image, ignore }], &table, &RenderSettings::default(), false).unwrap();
+        let fit = fit_table(
+            &mut cloud,
+            &[FitFrame {
+                camera: cam,
+                image: &image,
+                ignore,
+            }],
+            &table,
+            &RenderSettings::default(),
+            false,
+        )
+        .unwrap();
         assert!(fit.error_after < 0.25 * fit.error_before, "{fit:?}");
-        let render = CpuRenderer::new(RenderSettings::default()).forward(&cloud, &cam, Roi::full(&cam));
+        let render =
+            CpuRenderer::new(RenderSettings::default()).forward(&cloud, &cam, Roi::full(&cam));
         let at = |x: usize, y: usize| render.colour[y * 40 + x];
-        assert!(at(5, 5).x > 0.6 && at(5, 5).z < 0.3, "left is red: {}", at(5, 5));
-        assert!(at(34, 30).z > 0.6 && at(34, 30).x < 0.3, "right is blue: {}", at(34, 30));
-        assert!(at(9, 20).y < 0.3, "the masked block is not learned: {}", at(9, 20));
+        assert!(
+            at(5, 5).x > 0.6 && at(5, 5).z < 0.3,
+            "left is red: {}",
+            at(5, 5)
+        );
+        assert!(
+            at(34, 30).z > 0.6 && at(34, 30).x < 0.3,
+            "right is blue: {}",
+            at(34, 30)
+        );
+        assert!(
+            at(9, 20).y < 0.3,
+            "the masked block is not learned: {}",
+            at(9, 20)
+        );
     }
 }

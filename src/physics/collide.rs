@@ -25,44 +25,52 @@ pub fn collision_corrections(
     count: &mut [u32],
     pinned: &mut [bool],
 ) {
-    delta.par_chunks_mut(CHUNK).zip(count.par_chunks_mut(CHUNK)).zip(pinned.par_chunks_mut(CHUNK)).enumerate().for_each(|(c, ((dch, cch), sch))| {
-        for k in 0..dch.len() {
-            let i = c * CHUNK + k;
-            let mut sum = Vec3::ZERO;
-            let mut n_contacts = 0;
-            let wi = inv_mass[i];
-            if wi > 0.0 {
-                for &j in lists.of(i) {
-                    let j = j as usize;
-                    let d = pos[i] - pos[j];
-                    let dist = d.length();
-                    let depth = radius[i] + radius[j] - dist;
-                    if depth <= 0.0 {
-                        continue;
+    delta
+        .par_chunks_mut(CHUNK)
+        .zip(count.par_chunks_mut(CHUNK))
+        .zip(pinned.par_chunks_mut(CHUNK))
+        .enumerate()
+        .for_each(|(c, ((dch, cch), sch))| {
+            for k in 0..dch.len() {
+                let i = c * CHUNK + k;
+                let mut sum = Vec3::ZERO;
+                let mut n_contacts = 0;
+                let wi = inv_mass[i];
+                if wi > 0.0 {
+                    for &j in lists.of(i) {
+                        let j = j as usize;
+                        let d = pos[i] - pos[j];
+                        let dist = d.length();
+                        let depth = radius[i] + radius[j] - dist;
+                        if depth <= 0.0 {
+                            continue;
+                        }
+                        let normal = if dist > 1e-9 { d / dist } else { Vec3::Z };
+                        let share = wi / (wi + inv_mass[j]);
+                        let rel = (pos[i] - prev[i]) - (pos[j] - prev[j]);
+                        let tangential = rel - rel.dot(normal) * normal;
+                        let (slip, _) = friction(tangential, depth, mu_static, mu_kinetic);
+                        sum += share * (depth * normal + slip);
+                        n_contacts += 1;
+                        sch[k] |= inv_mass[j] <= 0.0;
                     }
-                    let normal = if dist > 1e-9 { d / dist } else { Vec3::Z };
-                    let share = wi / (wi + inv_mass[j]);
-                    let rel = (pos[i] - prev[i]) - (pos[j] - prev[j]);
-                    let tangential = rel - rel.dot(normal) * normal;
-                    let (slip, _) = friction(tangential, depth, mu_static, mu_kinetic);
-                    sum += share * (depth * normal + slip);
-                    n_contacts += 1;
-                    sch[k] |= inv_mass[j] <= 0.0;
                 }
+                dch[k] = sum;
+                cch[k] = n_contacts;
             }
-            dch[k] = sum;
-            cch[k] = n_contacts;
-        }
-    });
+        });
 }
 
 /// `x += relaxation * delta / count` for every particle with at least one correction.
 pub fn apply_averaged(pos: &mut [Vec3], delta: &[Vec3], count: &[u32], relaxation: f32) {
-    pos.par_iter_mut().with_min_len(8192).enumerate().for_each(|(i, x)| {
-        if count[i] > 0 {
-            *x += relaxation * delta[i] / count[i] as f32;
-        }
-    });
+    pos.par_iter_mut()
+        .with_min_len(8192)
+        .enumerate()
+        .for_each(|(i, x)| {
+            if count[i] > 0 {
+                *x += relaxation * delta[i] / count[i] as f32;
+            }
+        });
 }
 
 #[cfg(test)]
@@ -75,13 +83,30 @@ mod tests {
         let prev = pos.clone();
         let inv_mass = [1.0, 3.0];
         let radius = [0.01, 0.01];
-        let lists = NeighbourLists { offsets: vec![0, 1, 2], neighbours: vec![1, 0] };
+        let lists = NeighbourLists {
+            offsets: vec![0, 1, 2],
+            neighbours: vec![1, 0],
+        };
         let mut delta = vec![Vec3::ZERO; 2];
         let mut count = vec![0; 2];
-        collision_corrections(&pos, &prev, &inv_mass, &radius, &lists, 0.0, 0.0, &mut delta, &mut count, &mut [false; 2]);
+        collision_corrections(
+            &pos,
+            &prev,
+            &inv_mass,
+            &radius,
+            &lists,
+            0.0,
+            0.0,
+            &mut delta,
+            &mut count,
+            &mut [false; 2],
+        );
         let mut after = pos.clone();
         apply_averaged(&mut after, &delta, &count, 1.0);
-        assert!(((after[1] - after[0]).length() - 0.02).abs() < 1e-6, "exactly touching afterwards");
+        assert!(
+            ((after[1] - after[0]).length() - 0.02).abs() < 1e-6,
+            "exactly touching afterwards"
+        );
         // Momentum-like sum m*dx is zero: 1/w0 * dx0 + 1/w1 * dx1 = 0.
         let p = (after[0] - pos[0]) / inv_mass[0] + (after[1] - pos[1]) / inv_mass[1];
         assert!(p.length() < 1e-7, "{p}");
@@ -92,11 +117,28 @@ mod tests {
     #[test]
     fn kinematic_partner_takes_no_correction() {
         let pos = vec![Vec3::ZERO, Vec3::new(0.0, 0.0, 0.01)];
-        let lists = NeighbourLists { offsets: vec![0, 1, 1], neighbours: vec![1] };
+        let lists = NeighbourLists {
+            offsets: vec![0, 1, 1],
+            neighbours: vec![1],
+        };
         let mut delta = vec![Vec3::ZERO; 2];
         let mut count = vec![0; 2];
-        collision_corrections(&pos, &pos, &[1.0, 0.0], &[0.01, 0.01], &lists, 0.0, 0.0, &mut delta, &mut count, &mut [false; 2]);
-        assert!((delta[0] - Vec3::new(0.0, 0.0, -0.01)).length() < 1e-7, "dynamic particle takes the whole correction");
+        collision_corrections(
+            &pos,
+            &pos,
+            &[1.0, 0.0],
+            &[0.01, 0.01],
+            &lists,
+            0.0,
+            0.0,
+            &mut delta,
+            &mut count,
+            &mut [false; 2],
+        );
+        assert!(
+            (delta[0] - Vec3::new(0.0, 0.0, -0.01)).length() < 1e-7,
+            "dynamic particle takes the whole correction"
+        );
         assert_eq!(count[1], 0);
     }
 }

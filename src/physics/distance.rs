@@ -10,7 +10,12 @@ use glam::Vec3;
 
 /// Project every constraint once, in index order or, with `reverse`, backwards. Alternating the
 /// direction between sweeps (symmetric Gauss-Seidel) carries tension both ways along a chain.
-pub fn project_distances(c: &DistanceConstraints, pos: &mut [Vec3], inv_mass: &[f32], reverse: bool) {
+pub fn project_distances(
+    c: &DistanceConstraints,
+    pos: &mut [Vec3],
+    inv_mass: &[f32],
+    reverse: bool,
+) {
     for step in 0..c.len() {
         let k = if reverse { c.len() - 1 - step } else { step };
         let (a, b) = (c.a[k] as usize, c.b[k] as usize);
@@ -53,7 +58,10 @@ mod tests {
         let before = com(&pos);
         project_distances(&c, &mut pos, &w, true);
         assert!((com(&pos) - before).length() < 1e-6);
-        assert!((pos[0].distance(pos[1]) - 0.2).abs() < 1e-6, "stiffness 0.5 removes half the violation");
+        assert!(
+            (pos[0].distance(pos[1]) - 0.2).abs() < 1e-6,
+            "stiffness 0.5 removes half the violation"
+        );
     }
 }
 
@@ -138,10 +146,21 @@ mod attachment_tests {
     #[test]
     fn attachments_bound_each_particle_by_its_distance_along_the_rope() {
         let mut b = WorldBuilder::new();
-        let pts: Vec<Vec3> = (0..5).map(|k| Vec3::new(0.01 * k as f32, 0.0, 0.0)).collect();
+        let pts: Vec<Vec3> = (0..5)
+            .map(|k| Vec3::new(0.01 * k as f32, 0.0, 0.0))
+            .collect();
         let rope = b.add_rope("rope", &pts, 0.005, 0.001, 0.0, Vec3::ONE);
-        let anchor = b.add_static("anchor", &[Vec3::ZERO], 0.005, Pose::from_translation(Vec3::new(-0.01, 0.0, 0.0)), Vec3::ONE);
-        let (a, r) = (b.world().shapes.range(anchor).start, b.world().shapes.range(rope).start);
+        let anchor = b.add_static(
+            "anchor",
+            &[Vec3::ZERO],
+            0.005,
+            Pose::from_translation(Vec3::new(-0.01, 0.0, 0.0)),
+            Vec3::ONE,
+        );
+        let (a, r) = (
+            b.world().shapes.range(anchor).start,
+            b.world().shapes.range(rope).start,
+        );
         b.attach(a, r);
         let w = b.build();
         let lra = LongRangeAttachments::build(&w, &w.particles.inv_mass);

@@ -87,10 +87,13 @@ impl Effect {
     /// The object this effect acts on, if it names one.
     pub fn object(&self) -> Option<&str> {
         match self {
-            Effect::ViscousDrag { object, .. } | Effect::AngularDamping { object, .. } | Effect::ConstantForce { object, .. } | Effect::Restitution { object, .. } => {
-                object.as_deref()
-            }
-            Effect::MassScale { object, .. } | Effect::CenterOfMassOffset { object, .. } | Effect::Spring { object, .. } => Some(object),
+            Effect::ViscousDrag { object, .. }
+            | Effect::AngularDamping { object, .. }
+            | Effect::ConstantForce { object, .. }
+            | Effect::Restitution { object, .. } => object.as_deref(),
+            Effect::MassScale { object, .. }
+            | Effect::CenterOfMassOffset { object, .. }
+            | Effect::Spring { object, .. } => Some(object),
             Effect::TableTilt { .. } | Effect::FrictionPatch { .. } => None,
         }
     }
@@ -98,14 +101,29 @@ impl Effect {
     /// The scalar parameters, by name, in a fixed order (vectors expand to `_x`, `_y`, `_z`).
     pub fn parameters(&self) -> Vec<(&'static str, f32)> {
         match *self {
-            Effect::ViscousDrag { coefficient, .. } | Effect::AngularDamping { coefficient, .. } | Effect::Restitution { coefficient, .. } => {
+            Effect::ViscousDrag { coefficient, .. }
+            | Effect::AngularDamping { coefficient, .. }
+            | Effect::Restitution { coefficient, .. } => {
                 vec![("coefficient", coefficient)]
             }
-            Effect::ConstantForce { force, .. } => vec![("force_x", force.x), ("force_y", force.y), ("force_z", force.z)],
+            Effect::ConstantForce { force, .. } => vec![
+                ("force_x", force.x),
+                ("force_y", force.y),
+                ("force_z", force.z),
+            ],
             Effect::TableTilt { angle, azimuth } => vec![("angle", angle), ("azimuth", azimuth)],
             Effect::MassScale { factor, .. } => vec![("factor", factor)],
-            Effect::CenterOfMassOffset { offset, .. } => vec![("offset_x", offset.x), ("offset_y", offset.y), ("offset_z", offset.z)],
-            Effect::FrictionPatch { center, half_size, static_friction, kinetic_friction } => vec![
+            Effect::CenterOfMassOffset { offset, .. } => vec![
+                ("offset_x", offset.x),
+                ("offset_y", offset.y),
+                ("offset_z", offset.z),
+            ],
+            Effect::FrictionPatch {
+                center,
+                half_size,
+                static_friction,
+                kinetic_friction,
+            } => vec![
                 ("center_x", center.x),
                 ("center_y", center.y),
                 ("half_size_x", half_size.x),
@@ -113,7 +131,14 @@ impl Effect {
                 ("static_friction", static_friction),
                 ("kinetic_friction", kinetic_friction),
             ],
-            Effect::Spring { point, anchor, stiffness, rest_length, damping, .. } => vec![
+            Effect::Spring {
+                point,
+                anchor,
+                stiffness,
+                rest_length,
+                damping,
+                ..
+            } => vec![
                 ("point_x", point.x),
                 ("point_y", point.y),
                 ("point_z", point.z),
@@ -131,7 +156,9 @@ impl Effect {
     pub fn set_parameter(&mut self, name: &str, value: f32) -> Result<()> {
         let effect_name = self.name();
         let slot: Option<&mut f32> = match self {
-            Effect::ViscousDrag { coefficient, .. } | Effect::AngularDamping { coefficient, .. } | Effect::Restitution { coefficient, .. } => {
+            Effect::ViscousDrag { coefficient, .. }
+            | Effect::AngularDamping { coefficient, .. }
+            | Effect::Restitution { coefficient, .. } => {
                 (name == "coefficient").then_some(coefficient)
             }
             Effect::ConstantForce { force, .. } => vec3_slot(force, name, "force"),
@@ -142,7 +169,12 @@ impl Effect {
             },
             Effect::MassScale { factor, .. } => (name == "factor").then_some(factor),
             Effect::CenterOfMassOffset { offset, .. } => vec3_slot(offset, name, "offset"),
-            Effect::FrictionPatch { center, half_size, static_friction, kinetic_friction } => match name {
+            Effect::FrictionPatch {
+                center,
+                half_size,
+                static_friction,
+                kinetic_friction,
+            } => match name {
                 "center_x" => Some(&mut center.x),
                 "center_y" => Some(&mut center.y),
                 "half_size_x" => Some(&mut half_size.x),
@@ -151,7 +183,14 @@ impl Effect {
                 "kinetic_friction" => Some(kinetic_friction),
                 _ => None,
             },
-            Effect::Spring { point, anchor, stiffness, rest_length, damping, .. } => match name {
+            Effect::Spring {
+                point,
+                anchor,
+                stiffness,
+                rest_length,
+                damping,
+                ..
+            } => match name {
                 "stiffness" => Some(stiffness),
                 "rest_length" => Some(rest_length),
                 "damping" => Some(damping),
@@ -167,20 +206,41 @@ impl Effect {
     pub fn validate(&self) -> Result<()> {
         let bad = self.parameters().into_iter().find(|(_, v)| !v.is_finite());
         if let Some((p, v)) = bad {
-            bail!("effect {}: parameter {p} must be finite, got {v}", self.name());
+            bail!(
+                "effect {}: parameter {p} must be finite, got {v}",
+                self.name()
+            );
         }
         match *self {
-            Effect::ViscousDrag { coefficient, .. } | Effect::AngularDamping { coefficient, .. } if coefficient < 0.0 => {
+            Effect::ViscousDrag { coefficient, .. }
+            | Effect::AngularDamping { coefficient, .. }
+                if coefficient < 0.0 =>
+            {
                 bail!("effect {}: coefficient must be >= 0", self.name())
             }
-            Effect::MassScale { factor, .. } if factor <= 0.0 => bail!("effect mass_scale: factor must be > 0"),
-            Effect::Restitution { coefficient, .. } if !(0.0..=1.0).contains(&coefficient) => bail!("effect restitution: coefficient must be within 0 ..= 1"),
-            Effect::FrictionPatch { half_size, static_friction, kinetic_friction, .. }
-                if half_size.min_element() < 0.0 || static_friction < 0.0 || kinetic_friction < 0.0 =>
+            Effect::MassScale { factor, .. } if factor <= 0.0 => {
+                bail!("effect mass_scale: factor must be > 0")
+            }
+            Effect::Restitution { coefficient, .. } if !(0.0..=1.0).contains(&coefficient) => {
+                bail!("effect restitution: coefficient must be within 0 ..= 1")
+            }
+            Effect::FrictionPatch {
+                half_size,
+                static_friction,
+                kinetic_friction,
+                ..
+            } if half_size.min_element() < 0.0
+                || static_friction < 0.0
+                || kinetic_friction < 0.0 =>
             {
                 bail!("effect friction_patch: sizes and friction coefficients must be >= 0")
             }
-            Effect::Spring { stiffness, rest_length, damping, .. } if stiffness < 0.0 || rest_length < 0.0 || damping < 0.0 => {
+            Effect::Spring {
+                stiffness,
+                rest_length,
+                damping,
+                ..
+            } if stiffness < 0.0 || rest_length < 0.0 || damping < 0.0 => {
                 bail!("effect spring: stiffness, rest_length and damping must be >= 0")
             }
             _ => Ok(()),
@@ -223,8 +283,16 @@ impl EffectModel {
             effect.validate()?;
             let shapes: Vec<ShapeId> = match effect.object() {
                 Some(name) => {
-                    let s = world.shape_id(name).ok_or_else(|| anyhow!("effect {}: no object named '{name}' in the scene", effect.name()))?;
-                    if !matches!(world.shapes.kind[s as usize], ShapeKind::Rigid | ShapeKind::Rope) {
+                    let s = world.shape_id(name).ok_or_else(|| {
+                        anyhow!(
+                            "effect {}: no object named '{name}' in the scene",
+                            effect.name()
+                        )
+                    })?;
+                    if !matches!(
+                        world.shapes.kind[s as usize],
+                        ShapeKind::Rigid | ShapeKind::Rope
+                    ) {
                         bail!("effect {}: object '{name}' is not dynamic", effect.name());
                     }
                     vec![s]
@@ -235,12 +303,20 @@ impl EffectModel {
                 Effect::Spring { point, .. } => {
                     let range = world.shapes.range(shapes[0]);
                     let rest = &world.particles.rest[range.clone()];
-                    let nearest = (0..rest.len()).min_by(|&a, &b| rest[a].distance_squared(*point).total_cmp(&rest[b].distance_squared(*point)));
+                    let nearest = (0..rest.len()).min_by(|&a, &b| {
+                        rest[a]
+                            .distance_squared(*point)
+                            .total_cmp(&rest[b].distance_squared(*point))
+                    });
                     nearest.map(|k| range.start + k)
                 }
                 _ => None,
             };
-            terms.push(Bound { effect: effect.clone(), shapes, particle });
+            terms.push(Bound {
+                effect: effect.clone(),
+                shapes,
+                particle,
+            });
         }
         Ok(Self { terms })
     }
@@ -259,7 +335,9 @@ impl EffectModel {
                         inv_mass[i] /= factor;
                     }
                 }
-                Effect::CenterOfMassOffset { offset, .. } => shift_center_of_mass(world, t.shapes[0], offset, &mut inv_mass)?,
+                Effect::CenterOfMassOffset { offset, .. } => {
+                    shift_center_of_mass(world, t.shapes[0], offset, &mut inv_mass)?
+                }
                 _ => {}
             }
         }
@@ -267,7 +345,15 @@ impl EffectModel {
     }
 
     /// Add the effects' accelerations (m/s^2) of every particle to `accel`.
-    pub fn add_accelerations(&self, world: &World, inv_mass: &[f32], shape: &ShapeState, gravity: Vec3, ground_normal: Vec3, accel: &mut [Vec3]) {
+    pub fn add_accelerations(
+        &self,
+        world: &World,
+        inv_mass: &[f32],
+        shape: &ShapeState,
+        gravity: Vec3,
+        ground_normal: Vec3,
+        accel: &mut [Vec3],
+    ) {
         let p = &world.particles;
         for t in &self.terms {
             match t.effect {
@@ -280,7 +366,10 @@ impl EffectModel {
                 Effect::AngularDamping { coefficient, .. } => {
                     for &s in &t.shapes {
                         let v_com = shape.velocity[s as usize];
-                        world.shapes.range(s).for_each(|i| accel[i] -= coefficient * (p.velocity[i] - v_com));
+                        world
+                            .shapes
+                            .range(s)
+                            .for_each(|i| accel[i] -= coefficient * (p.velocity[i] - v_com));
                     }
                 }
                 Effect::ConstantForce { force, .. } => {
@@ -299,7 +388,14 @@ impl EffectModel {
                         world.shapes.range(s).for_each(|i| accel[i] += extra);
                     }
                 }
-                Effect::Spring { anchor, stiffness, rest_length, damping, tether, .. } => {
+                Effect::Spring {
+                    anchor,
+                    stiffness,
+                    rest_length,
+                    damping,
+                    tether,
+                    ..
+                } => {
                     let Some(i) = t.particle else { continue };
                     let d = p.position[i] - anchor;
                     let len = d.length();
@@ -314,7 +410,10 @@ impl EffectModel {
                     let force = -(stiffness * stretch + damping * p.velocity[i].dot(dir)) * dir;
                     accel[i] += force * inv_mass[i];
                 }
-                Effect::MassScale { .. } | Effect::CenterOfMassOffset { .. } | Effect::FrictionPatch { .. } | Effect::Restitution { .. } => {}
+                Effect::MassScale { .. }
+                | Effect::CenterOfMassOffset { .. }
+                | Effect::FrictionPatch { .. }
+                | Effect::Restitution { .. } => {}
             }
         }
     }
@@ -331,14 +430,22 @@ impl EffectModel {
     }
 
     pub fn has_friction_patches(&self) -> bool {
-        self.terms.iter().any(|t| matches!(t.effect, Effect::FrictionPatch { .. }))
+        self.terms
+            .iter()
+            .any(|t| matches!(t.effect, Effect::FrictionPatch { .. }))
     }
 
     /// Ground friction coefficients at `p`: the last patch containing it, else `base`.
     pub fn ground_friction(&self, p: Vec3, base: (f32, f32)) -> (f32, f32) {
         let mut mu = base;
         for t in &self.terms {
-            if let Effect::FrictionPatch { center, half_size, static_friction, kinetic_friction } = t.effect {
+            if let Effect::FrictionPatch {
+                center,
+                half_size,
+                static_friction,
+                kinetic_friction,
+            } = t.effect
+            {
                 let d = (Vec2::new(p.x, p.y) - center).abs();
                 if d.x <= half_size.x && d.y <= half_size.y {
                     mu = (static_friction, kinetic_friction);
@@ -358,7 +465,12 @@ pub fn tangent_basis(n: Vec3) -> (Vec3, Vec3) {
 
 /// Re-weight the masses of one shape linearly over its rest positions, `m_i' = m_i (1 + a . u_i)`,
 /// so that the total mass stays the same and the centre of mass moves by `offset` (body frame).
-fn shift_center_of_mass(world: &World, s: ShapeId, offset: Vec3, inv_mass: &mut [f32]) -> Result<()> {
+fn shift_center_of_mass(
+    world: &World,
+    s: ShapeId,
+    offset: Vec3,
+    inv_mass: &mut [f32],
+) -> Result<()> {
     let range = world.shapes.range(s);
     let rest = &world.particles.rest[range.clone()];
     let masses: Vec<f32> = inv_mass[range.clone()].iter().map(|w| 1.0 / w).collect();
@@ -370,13 +482,19 @@ fn shift_center_of_mass(world: &World, s: ShapeId, offset: Vec3, inv_mass: &mut 
         cov += Mat3::from_cols(u * u.x, u * u.y, u * u.z) * *m;
     }
     if cov.determinant().abs() < 1e-18 {
-        bail!("center_of_mass_offset: object '{}' is flat or a line; its centre of mass cannot move off that set", world.shapes.name[s as usize]);
+        bail!(
+            "center_of_mass_offset: object '{}' is flat or a line; its centre of mass cannot move off that set",
+            world.shapes.name[s as usize]
+        );
     }
     let a = cov.inverse() * (offset * total);
     for (k, i) in range.enumerate() {
         let weight = 1.0 + a.dot(rest[k] - com);
         if weight < 0.05 {
-            bail!("center_of_mass_offset: offset {offset} is too large for object '{}' (it would need negative mass)", world.shapes.name[s as usize]);
+            bail!(
+                "center_of_mass_offset: offset {offset} is too large for object '{}' (it would need negative mass)",
+                world.shapes.name[s as usize]
+            );
         }
         inv_mass[i] = 1.0 / (masses[k] * weight);
     }
@@ -391,7 +509,14 @@ mod tests {
 
     fn one_box() -> World {
         let mut b = WorldBuilder::new();
-        b.add_rigid("box", &box_lattice(Vec3::new(0.05, 0.04, 0.02), 0.01), 0.005, 0.002, Pose::IDENTITY, Vec3::ONE);
+        b.add_rigid(
+            "box",
+            &box_lattice(Vec3::new(0.05, 0.04, 0.02), 0.01),
+            0.005,
+            0.002,
+            Pose::IDENTITY,
+            Vec3::ONE,
+        );
         b.build()
     }
 
@@ -399,49 +524,109 @@ mod tests {
     fn center_of_mass_offset_moves_the_com_and_keeps_the_mass() {
         let w = one_box();
         let offset = Vec3::new(0.008, -0.004, 0.001);
-        let model = EffectModel::bind(&[Effect::CenterOfMassOffset { object: "box".into(), offset }], &w).unwrap();
+        let model = EffectModel::bind(
+            &[Effect::CenterOfMassOffset {
+                object: "box".into(),
+                offset,
+            }],
+            &w,
+        )
+        .unwrap();
         let inv = model.effective_inv_mass(&w).unwrap();
         let m: Vec<f32> = inv.iter().map(|x| 1.0 / x).collect();
         let total: f32 = m.iter().sum();
         let nominal: f32 = w.particles.inv_mass.iter().map(|x| 1.0 / x).sum();
         assert!((total - nominal).abs() / nominal < 1e-5);
-        let com = w.particles.rest.iter().zip(&m).map(|(r, m)| *r * *m).sum::<Vec3>() / total;
+        let com = w
+            .particles
+            .rest
+            .iter()
+            .zip(&m)
+            .map(|(r, m)| *r * *m)
+            .sum::<Vec3>()
+            / total;
         assert!((com - offset).length() < 1e-5, "com {com} want {offset}");
         // Too far: outside the body needs negative masses, which is refused.
-        let far = EffectModel::bind(&[Effect::CenterOfMassOffset { object: "box".into(), offset: Vec3::new(0.2, 0.0, 0.0) }], &w).unwrap();
+        let far = EffectModel::bind(
+            &[Effect::CenterOfMassOffset {
+                object: "box".into(),
+                offset: Vec3::new(0.2, 0.0, 0.0),
+            }],
+            &w,
+        )
+        .unwrap();
         assert!(far.effective_inv_mass(&w).is_err());
     }
 
     #[test]
     fn parameters_round_trip_by_name_and_unknown_names_fail() {
-        let mut e = Effect::Spring { object: "box".into(), point: Vec3::ZERO, anchor: Vec3::ONE, stiffness: 3.0, rest_length: 0.1, damping: 0.0, tether: true };
+        let mut e = Effect::Spring {
+            object: "box".into(),
+            point: Vec3::ZERO,
+            anchor: Vec3::ONE,
+            stiffness: 3.0,
+            rest_length: 0.1,
+            damping: 0.0,
+            tether: true,
+        };
         for (name, _) in e.parameters() {
             let mut f = e.clone();
             f.set_parameter(name, 0.25).unwrap();
-            assert_eq!(f.parameters().iter().find(|(n, _)| *n == name).unwrap().1, 0.25, "{name}");
+            assert_eq!(
+                f.parameters().iter().find(|(n, _)| *n == name).unwrap().1,
+                0.25,
+                "{name}"
+            );
         }
         assert!(e.set_parameter("mass", 1.0).is_err());
-        assert!(e.set_parameter("stiffness", -1.0).is_err(), "validation runs after setting");
+        assert!(
+            e.set_parameter("stiffness", -1.0).is_err(),
+            "validation runs after setting"
+        );
     }
 
     #[test]
     fn binding_reports_unknown_objects() {
         let w = one_box();
-        let err = EffectModel::bind(&[Effect::MassScale { object: "mug".into(), factor: 2.0 }], &w).err().unwrap();
+        let err = EffectModel::bind(
+            &[Effect::MassScale {
+                object: "mug".into(),
+                factor: 2.0,
+            }],
+            &w,
+        )
+        .err()
+        .unwrap();
         assert!(err.to_string().contains("mug"));
     }
 
     #[test]
     fn table_tilt_adds_the_downhill_component_of_gravity() {
         let w = one_box();
-        let model = EffectModel::bind(&[Effect::TableTilt { angle: 0.1, azimuth: std::f32::consts::FRAC_PI_2 }], &w).unwrap();
+        let model = EffectModel::bind(
+            &[Effect::TableTilt {
+                angle: 0.1,
+                azimuth: std::f32::consts::FRAC_PI_2,
+            }],
+            &w,
+        )
+        .unwrap();
         let n = w.particles.len();
         let mut accel = vec![Vec3::ZERO; n];
-        let state = ShapeState { mass: &[1.0], velocity: &[Vec3::ZERO] };
+        let state = ShapeState {
+            mass: &[1.0],
+            velocity: &[Vec3::ZERO],
+        };
         let g = Vec3::new(0.0, 0.0, -9.81);
         model.add_accelerations(&w, &w.particles.inv_mass, &state, g, Vec3::Z, &mut accel);
         let total = g + accel[0];
-        assert!((total.y - 9.81 * 0.1f32.sin()).abs() < 1e-5, "downhill along +y: {total}");
-        assert!((total.length() - 9.81).abs() < 1e-4, "tilt only turns gravity");
+        assert!(
+            (total.y - 9.81 * 0.1f32.sin()).abs() < 1e-5,
+            "downhill along +y: {total}"
+        );
+        assert!(
+            (total.length() - 9.81).abs() < 1e-4,
+            "tilt only turns gravity"
+        );
     }
 }

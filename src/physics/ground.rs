@@ -37,22 +37,26 @@ pub fn project_ground(
     coefficients: &(dyn Fn(Vec3) -> (f32, f32) + Sync),
     pinned: &mut [bool],
 ) {
-    pos.par_iter_mut().zip(pinned.par_iter_mut()).with_min_len(8192).enumerate().for_each(|(i, (x, pinned))| {
-        if inv_mass[i] <= 0.0 {
-            return;
-        }
-        let depth = radius[i] - (plane.normal.dot(*x) - plane.height);
-        if depth <= 0.0 {
-            return;
-        }
-        *x += depth * plane.normal;
-        let moved = *x - prev[i];
-        let tangential = moved - moved.dot(plane.normal) * plane.normal;
-        let (mu_s, mu_k) = coefficients(*x);
-        let (correction, sticks) = friction(tangential, depth, mu_s, mu_k);
-        *x += correction;
-        *pinned |= sticks;
-    });
+    pos.par_iter_mut()
+        .zip(pinned.par_iter_mut())
+        .with_min_len(8192)
+        .enumerate()
+        .for_each(|(i, (x, pinned))| {
+            if inv_mass[i] <= 0.0 {
+                return;
+            }
+            let depth = radius[i] - (plane.normal.dot(*x) - plane.height);
+            if depth <= 0.0 {
+                return;
+            }
+            *x += depth * plane.normal;
+            let moved = *x - prev[i];
+            let tangential = moved - moved.dot(plane.normal) * plane.normal;
+            let (mu_s, mu_k) = coefficients(*x);
+            let (correction, sticks) = friction(tangential, depth, mu_s, mu_k);
+            *x += correction;
+            *pinned |= sticks;
+        });
 }
 
 #[cfg(test)]
@@ -66,28 +70,56 @@ mod tests {
         assert_eq!(friction_correction(t, 1e-3, 0.5, 0.4), -t);
         let big = Vec3::new(1e-2, 0.0, 0.0);
         let c = friction_correction(big, 1e-3, 0.5, 0.4);
-        assert!((c.x + 0.4e-3).abs() < 1e-9, "kinetic friction removes mu_k * depth: {c}");
+        assert!(
+            (c.x + 0.4e-3).abs() < 1e-9,
+            "kinetic friction removes mu_k * depth: {c}"
+        );
         assert_eq!(friction_correction(Vec3::ZERO, 0.0, 0.5, 0.4), Vec3::ZERO);
-        assert!(friction(t, 1e-3, 0.5, 0.4).1, "a slip inside the static cone sticks");
+        assert!(
+            friction(t, 1e-3, 0.5, 0.4).1,
+            "a slip inside the static cone sticks"
+        );
         assert!(!friction(big, 1e-3, 0.5, 0.4).1);
-        assert!(!friction(Vec3::ZERO, 1e-3, 0.0, 0.0).1, "frictionless contacts never stick");
+        assert!(
+            !friction(Vec3::ZERO, 1e-3, 0.0, 0.0).1,
+            "frictionless contacts never stick"
+        );
     }
 
     #[test]
     fn penetrating_particle_is_lifted_to_its_radius_on_a_tilted_plane() {
         let n = Vec3::new(0.1, 0.0, 1.0).normalize();
-        let plane = Plane { normal: n, height: 0.02 };
+        let plane = Plane {
+            normal: n,
+            height: 0.02,
+        };
         let start = Vec3::new(0.3, 0.1, 0.0);
         let mut pos = vec![start];
         let prev = vec![start];
-        project_ground(&mut pos, &prev, &[0.01], &[1.0], plane, &|_| (0.0, 0.0), &mut [false]);
+        project_ground(
+            &mut pos,
+            &prev,
+            &[0.01],
+            &[1.0],
+            plane,
+            &|_| (0.0, 0.0),
+            &mut [false],
+        );
         assert!((n.dot(pos[0]) - plane.height - 0.01).abs() < 1e-6);
         // Frictionless: the correction is purely along the normal.
         let d = pos[0] - start;
         assert!(d.cross(n).length() < 1e-6);
         // Kinematic/static particles (inv_mass 0) are never touched.
         let mut pinned = vec![start];
-        project_ground(&mut pinned, &prev, &[0.01], &[0.0], plane, &|_| (0.0, 0.0), &mut [false]);
+        project_ground(
+            &mut pinned,
+            &prev,
+            &[0.01],
+            &[0.0],
+            plane,
+            &|_| (0.0, 0.0),
+            &mut [false],
+        );
         assert_eq!(pinned[0], start);
     }
 }

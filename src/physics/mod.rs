@@ -131,7 +131,14 @@ impl Solver {
         }
         self.inv_mass = self.effects.effective_inv_mass(world)?;
         self.shape_mass = (0..ns)
-            .map(|s| world.shapes.range(s as ShapeId).filter(|&i| self.inv_mass[i] > 0.0).map(|i| 1.0 / self.inv_mass[i]).sum())
+            .map(|s| {
+                world
+                    .shapes
+                    .range(s as ShapeId)
+                    .filter(|&i| self.inv_mass[i] > 0.0)
+                    .map(|i| 1.0 / self.inv_mass[i])
+                    .sum()
+            })
             .collect();
         self.shape_velocity = vec![Vec3::ZERO; ns];
         self.restitution = self.effects.restitution(ns);
@@ -153,7 +160,11 @@ impl Solver {
     }
 
     /// Advance one tick with kinematic poses from `driver` (e.g. forward kinematics per substep).
-    pub fn step_driven(&mut self, world: &mut World, driver: &mut dyn KinematicDriver) -> Result<()> {
+    pub fn step_driven(
+        &mut self,
+        world: &mut World,
+        driver: &mut dyn KinematicDriver,
+    ) -> Result<()> {
         if self.bound_to != (world.particles.len(), world.shapes.len()) {
             self.bind(world)?;
         }
@@ -202,14 +213,21 @@ impl Solver {
         let shapes = &mut world.shapes;
         for s in 0..shapes.len() {
             let t = shapes.target[s];
-            if shapes.kind[s] == ShapeKind::Kinematic && !(t.translation.is_finite() && t.rotation.is_finite()) {
+            if shapes.kind[s] == ShapeKind::Kinematic
+                && !(t.translation.is_finite() && t.rotation.is_finite())
+            {
                 shapes.target[s] = shapes.pose[s];
                 self.stats.rejected_poses += 1;
             }
         }
     }
 
-    fn place_kinematic(&mut self, world: &mut World, driver: &mut dyn KinematicDriver, fraction: f32) {
+    fn place_kinematic(
+        &mut self,
+        world: &mut World,
+        driver: &mut dyn KinematicDriver,
+        fraction: f32,
+    ) {
         for s in 0..world.shapes.len() {
             if world.shapes.kind[s] != ShapeKind::Kinematic {
                 continue;
@@ -236,15 +254,37 @@ impl Solver {
         let gravity = self.config.gravity;
         let p = &mut world.particles;
         let inv_mass = &self.inv_mass;
-        self.accel.par_iter_mut().with_min_len(PAR_MIN).enumerate().for_each(|(i, a)| {
-            *a = if inv_mass[i] > 0.0 { gravity + p.external_force[i] * inv_mass[i] } else { Vec3::ZERO };
-        });
+        self.accel
+            .par_iter_mut()
+            .with_min_len(PAR_MIN)
+            .enumerate()
+            .for_each(|(i, a)| {
+                *a = if inv_mass[i] > 0.0 {
+                    gravity + p.external_force[i] * inv_mass[i]
+                } else {
+                    Vec3::ZERO
+                };
+            });
         if !self.effects.is_empty() {
             for s in 0..world.shapes.len() {
-                self.shape_velocity[s] = crate::world::mass_weighted_mean(world.shapes.range(s as ShapeId), &world.particles.velocity, inv_mass);
+                self.shape_velocity[s] = crate::world::mass_weighted_mean(
+                    world.shapes.range(s as ShapeId),
+                    &world.particles.velocity,
+                    inv_mass,
+                );
             }
-            let state = ShapeState { mass: &self.shape_mass, velocity: &self.shape_velocity };
-            self.effects.add_accelerations(world, inv_mass, &state, gravity, self.config.ground.normal, &mut self.accel);
+            let state = ShapeState {
+                mass: &self.shape_mass,
+                velocity: &self.shape_velocity,
+            };
+            self.effects.add_accelerations(
+                world,
+                inv_mass,
+                &state,
+                gravity,
+                self.config.ground.normal,
+                &mut self.accel,
+            );
         }
         let p = &mut world.particles;
         let accel = &self.accel;
@@ -270,7 +310,15 @@ impl Solver {
         let max_radius = p.radius.iter().copied().fold(0.0f32, f32::max);
         let margin = self.config.collisions.margin * max_radius;
         self.hash.build(&p.position, 2.0 * max_radius + margin);
-        spatial_hash::find_neighbours(&self.hash, &p.position, &p.radius, &p.shape, &self.inv_mass, margin, &mut self.neighbours);
+        spatial_hash::find_neighbours(
+            &self.hash,
+            &p.position,
+            &p.radius,
+            &p.shape,
+            &self.inv_mass,
+            margin,
+            &mut self.neighbours,
+        );
         self.stats.contact_candidates = self.neighbours.pair_count();
     }
 
@@ -281,13 +329,32 @@ impl Solver {
         let p = &mut world.particles;
         self.pinned.fill(false);
         if cfg.ground.enabled {
-            let plane = Plane { normal: cfg.ground.normal, height: cfg.ground.height };
+            let plane = Plane {
+                normal: cfg.ground.normal,
+                height: cfg.ground.height,
+            };
             let base = (cfg.ground.static_friction, cfg.ground.kinetic_friction);
             let effects = &self.effects;
             if effects.has_friction_patches() {
-                ground::project_ground(&mut p.position, &self.prev, &p.radius, &self.inv_mass, plane, &|x| effects.ground_friction(x, base), &mut self.pinned);
+                ground::project_ground(
+                    &mut p.position,
+                    &self.prev,
+                    &p.radius,
+                    &self.inv_mass,
+                    plane,
+                    &|x| effects.ground_friction(x, base),
+                    &mut self.pinned,
+                );
             } else {
-                ground::project_ground(&mut p.position, &self.prev, &p.radius, &self.inv_mass, plane, &|_| base, &mut self.pinned);
+                ground::project_ground(
+                    &mut p.position,
+                    &self.prev,
+                    &p.radius,
+                    &self.inv_mass,
+                    plane,
+                    &|_| base,
+                    &mut self.pinned,
+                );
             }
         }
         if cfg.collisions.enabled && self.neighbours.pair_count() > 0 {
@@ -309,7 +376,12 @@ impl Solver {
         if !world.distance.is_empty() {
             let sweeps = cfg.distance_sweeps;
             for sweep in 0..sweeps {
-                distance::project_distances(&world.distance, &mut p.position, &self.inv_mass, (iteration * sweeps + sweep) % 2 == 1);
+                distance::project_distances(
+                    &world.distance,
+                    &mut p.position,
+                    &self.inv_mass,
+                    (iteration * sweeps + sweep) % 2 == 1,
+                );
                 self.attachments.project(&mut p.position);
             }
         }
@@ -364,16 +436,25 @@ impl Solver {
     fn update_velocities(&mut self, world: &mut World, h: f32) {
         let p = &mut world.particles;
         let prev = &self.prev;
-        p.velocity.par_iter_mut().zip(p.position.par_iter()).with_min_len(PAR_MIN).enumerate().for_each(|(i, (v, x))| {
-            *v = (*x - prev[i]) / h;
-        });
+        p.velocity
+            .par_iter_mut()
+            .zip(p.position.par_iter())
+            .with_min_len(PAR_MIN)
+            .enumerate()
+            .for_each(|(i, (v, x))| {
+                *v = (*x - prev[i]) / h;
+            });
     }
 
     /// Before contacts are solved: each bouncing shape's speed along the ground normal.
     fn record_normal_speeds(&mut self, world: &World) {
         let n = self.config.ground.normal;
         for s in (0..world.shapes.len()).filter(|&s| self.restitution[s] > 0.0) {
-            self.normal_speed[s] = n.dot(crate::world::mass_weighted_mean(world.shapes.range(s as ShapeId), &world.particles.velocity, &self.inv_mass));
+            self.normal_speed[s] = n.dot(crate::world::mass_weighted_mean(
+                world.shapes.range(s as ShapeId),
+                &world.particles.velocity,
+                &self.inv_mass,
+            ));
         }
     }
 
@@ -389,12 +470,18 @@ impl Solver {
         for s in (0..world.shapes.len()).filter(|&s| self.restitution[s] > 0.0) {
             let range = world.shapes.range(s as ShapeId);
             let p = &world.particles;
-            let touching = range.clone().any(|i| n.dot(p.position[i]) - height <= p.radius[i] * 1.01);
+            let touching = range
+                .clone()
+                .any(|i| n.dot(p.position[i]) - height <= p.radius[i] * 1.01);
             let incoming = self.normal_speed[s];
             if !touching || incoming > -resting {
                 continue;
             }
-            let outgoing = n.dot(crate::world::mass_weighted_mean(range.clone(), &p.velocity, &self.inv_mass));
+            let outgoing = n.dot(crate::world::mass_weighted_mean(
+                range.clone(),
+                &p.velocity,
+                &self.inv_mass,
+            ));
             let kick = -self.restitution[s] * incoming - outgoing;
             if kick > 0.0 {
                 range.for_each(|i| world.particles.velocity[i] += kick * n);
@@ -420,7 +507,9 @@ impl Solver {
             }
             self.stats.ground_contacts[s] = if self.config.ground.enabled {
                 let p = &world.particles;
-                range.filter(|&i| plane_normal.dot(p.position[i]) - height <= p.radius[i] * 1.01).count() as u32
+                range
+                    .filter(|&i| plane_normal.dot(p.position[i]) - height <= p.radius[i] * 1.01)
+                    .count() as u32
             } else {
                 0
             };
@@ -430,4 +519,3 @@ impl Solver {
 
 /// Smallest number of particles a cheap per-particle loop hands to one thread.
 const PAR_MIN: usize = 8192;
-

@@ -23,7 +23,13 @@ pub fn match_shape(
 ) -> (Vec3, Vec3) {
     // Sum relative to one particle and in f64: the centroid feeds velocities through (x - prev) / h,
     // and an f32 sum of absolute positions loses ~1e-7 m per sweep, visible as a velocity error.
-    let weight = |k: usize| if pinned[k] { pin_weight / inv_mass[k] } else { 1.0 / inv_mass[k] };
+    let weight = |k: usize| {
+        if pinned[k] {
+            pin_weight / inv_mass[k]
+        } else {
+            1.0 / inv_mass[k]
+        }
+    };
     let (origin, rest_origin) = (pos[0], rest[0]);
     let mut mass = 0.0f64;
     let mut weighted = glam::DVec3::ZERO;
@@ -56,7 +62,9 @@ mod tests {
 
     #[test]
     fn restores_rest_shape_and_keeps_mass_weighted_centroid() {
-        let rest: Vec<Vec3> = (0..27).map(|i| Vec3::new((i % 3) as f32, ((i / 3) % 3) as f32, (i / 9) as f32) * 0.01).collect();
+        let rest: Vec<Vec3> = (0..27)
+            .map(|i| Vec3::new((i % 3) as f32, ((i / 3) % 3) as f32, (i / 9) as f32) * 0.01)
+            .collect();
         let inv_mass: Vec<f32> = (0..27).map(|i| 1.0 + (i % 4) as f32).collect();
         let m: Vec<f32> = inv_mass.iter().map(|w| 1.0 / w).collect();
         let total: f32 = m.iter().sum();
@@ -68,7 +76,16 @@ mod tests {
         let mut pos: Vec<Vec3> = rest
             .iter()
             .enumerate()
-            .map(|(i, r)| true_rot * *r + offset + 0.001 * Vec3::new((i % 5) as f32 - 2.0, (i % 3) as f32 - 1.0, (i % 2) as f32 - 0.5))
+            .map(|(i, r)| {
+                true_rot * *r
+                    + offset
+                    + 0.001
+                        * Vec3::new(
+                            (i % 5) as f32 - 2.0,
+                            (i % 3) as f32 - 1.0,
+                            (i % 2) as f32 - 0.5,
+                        )
+            })
             .collect();
         let centroid_before = pos.iter().zip(&m).map(|(x, m)| *x * *m).sum::<Vec3>() / total;
         let mut rot = Quat::IDENTITY;
@@ -76,7 +93,10 @@ mod tests {
         assert!((c0 - rest_com).length() < 1e-6);
         assert!((c - centroid_before).length() < 1e-6);
         let centroid_after = pos.iter().zip(&m).map(|(x, m)| *x * *m).sum::<Vec3>() / total;
-        assert!((centroid_after - centroid_before).length() < 1e-6, "shape matching must conserve the centre of mass");
+        assert!(
+            (centroid_after - centroid_before).length() < 1e-6,
+            "shape matching must conserve the centre of mass"
+        );
         assert!(crate::math::rotation_angle_between(rot, true_rot) < 0.05);
         // Afterwards the configuration is exactly rigid.
         for (x, r) in pos.iter().zip(&rest) {
@@ -88,7 +108,9 @@ mod tests {
     fn pinned_particles_dominate_the_fit() {
         // Two particles of a 27-particle cube are pushed 1 mm by something immovable: with a heavy
         // pin weight the cube follows them almost fully; with weight 1 it moves by the average.
-        let rest: Vec<Vec3> = (0..27).map(|i| Vec3::new((i % 3) as f32, ((i / 3) % 3) as f32, (i / 9) as f32) * 0.01).collect();
+        let rest: Vec<Vec3> = (0..27)
+            .map(|i| Vec3::new((i % 3) as f32, ((i / 3) % 3) as f32, (i / 9) as f32) * 0.01)
+            .collect();
         let inv_mass = vec![1.0; 27];
         let mut pinned = vec![false; 27];
         pinned[0] = true;
@@ -104,10 +126,19 @@ mod tests {
             (mean, pos[0].z - rest[0].z)
         };
         let (mean, _) = shifted(1.0);
-        assert!((mean - 0.001 * 2.0 / 27.0).abs() < 1e-6, "unpinned: the cube moves by the average push");
+        assert!(
+            (mean - 0.001 * 2.0 / 27.0).abs() < 1e-6,
+            "unpinned: the cube moves by the average push"
+        );
         let (_, contact) = shifted(1000.0);
-        assert!(contact > 0.00095, "pinned: the contact points keep their correction ({contact})");
+        assert!(
+            contact > 0.00095,
+            "pinned: the contact points keep their correction ({contact})"
+        );
         let (_, contact) = shifted(1.0);
-        assert!(contact < 0.0005, "unpinned: the contact points lose most of it ({contact})");
+        assert!(
+            contact < 0.0005,
+            "unpinned: the contact points lose most of it ({contact})"
+        );
     }
 }

@@ -40,7 +40,9 @@ fn cell_of(p: Vec3, inv_cell: f32) -> IVec3 {
 }
 
 fn hash_cell(c: IVec3, mask: u32) -> u32 {
-    let h = (c.x as u32).wrapping_mul(73_856_093) ^ (c.y as u32).wrapping_mul(19_349_663) ^ (c.z as u32).wrapping_mul(83_492_791);
+    let h = (c.x as u32).wrapping_mul(73_856_093)
+        ^ (c.y as u32).wrapping_mul(19_349_663)
+        ^ (c.z as u32).wrapping_mul(83_492_791);
     h & mask
 }
 
@@ -52,9 +54,11 @@ impl SpatialHash {
         self.inv_cell = 1.0 / cell;
         self.mask = (size - 1) as u32;
         self.cells.clear();
-        self.cells.extend(positions.iter().map(|&p| cell_of(p, self.inv_cell)));
+        self.cells
+            .extend(positions.iter().map(|&p| cell_of(p, self.inv_cell)));
         self.keys.clear();
-        self.keys.extend(self.cells.iter().map(|&c| hash_cell(c, self.mask)));
+        self.keys
+            .extend(self.cells.iter().map(|&c| hash_cell(c, self.mask)));
         self.cell_start.clear();
         self.cell_start.resize(size + 1, 0);
         for &k in &self.keys {
@@ -178,7 +182,10 @@ mod tests {
             if inv_mass[i] > 0.0 {
                 for j in 0..n {
                     let reach = radius[i] + radius[j] + margin;
-                    if j != i && shape[j] != shape[i] && pos[i].distance_squared(pos[j]) < reach * reach {
+                    if j != i
+                        && shape[j] != shape[i]
+                        && pos[i].distance_squared(pos[j]) < reach * reach
+                    {
                         want.push(j as u32);
                     }
                 }
@@ -186,6 +193,9 @@ mod tests {
             assert_eq!(lists.of(i), &want[..], "particle {i}");
             total += want.len();
         }
-        assert!(total > 100, "the test cloud must actually contain contacts ({total})");
+        assert!(
+            total > 100,
+            "the test cloud must actually contain contacts ({total})"
+        );
     }
 }

@@ -2,7 +2,10 @@
 //! by the scenario generator; reading streams messages in file order for replay and tolerates a
 //! truncated file (it yields what is intact and says where it stopped).
 
-use crate::msgs::{self, CameraInfo, Header, Image, Quaternion, TfMessage, Time, Transform, TransformStamped, Vector3};
+use crate::msgs::{
+    self, CameraInfo, Header, Image, Quaternion, TfMessage, Time, Transform, TransformStamped,
+    Vector3,
+};
 use crate::render::Camera;
 use anyhow::{Context, Result};
 use serde::Serialize;
@@ -33,13 +36,21 @@ pub const TF_STATIC: &str = "/tf_static";
 pub const WORLD_FRAME: &str = "world";
 
 pub fn header(t: f64, frame: &str) -> Header {
-    Header { stamp: Time::from_seconds(t), frame_id: frame.to_string() }
+    Header {
+        stamp: Time::from_seconds(t),
+        frame_id: frame.to_string(),
+    }
 }
 
 /// CameraInfo of a pinhole camera without distortion (back to the OpenCV convention: pixel
 /// centres at integers).
 pub fn camera_info(c: &Camera, t: f64, frame: &str) -> CameraInfo {
-    let (fx, fy, cx, cy) = (c.fx as f64, c.fy as f64, c.cx as f64 - 0.5, c.cy as f64 - 0.5);
+    let (fx, fy, cx, cy) = (
+        c.fx as f64,
+        c.fy as f64,
+        c.cx as f64 - 0.5,
+        c.cy as f64 - 0.5,
+    );
     CameraInfo {
         header: header(t, frame),
         height: c.height,
@@ -55,17 +66,41 @@ pub fn camera_info(c: &Camera, t: f64, frame: &str) -> CameraInfo {
 
 /// An rgb8 image message from packed RGB bytes.
 pub fn rgb8(width: u32, height: u32, data: Vec<u8>, t: f64, frame: &str) -> Image {
-    Image { header: header(t, frame), height, width, encoding: "rgb8".into(), is_bigendian: 0, step: 3 * width, data }
+    Image {
+        header: header(t, frame),
+        height,
+        width,
+        encoding: "rgb8".into(),
+        is_bigendian: 0,
+        step: 3 * width,
+        data,
+    }
 }
 
 /// A 32FC1 depth image message (metres, little-endian).
 pub fn depth32(width: u32, height: u32, depth: &[f32], t: f64, frame: &str) -> Image {
-    Image { header: header(t, frame), height, width, encoding: "32FC1".into(), is_bigendian: 0, step: 4 * width, data: depth.iter().flat_map(|d| d.to_le_bytes()).collect() }
+    Image {
+        header: header(t, frame),
+        height,
+        width,
+        encoding: "32FC1".into(),
+        is_bigendian: 0,
+        step: 4 * width,
+        data: depth.iter().flat_map(|d| d.to_le_bytes()).collect(),
+    }
 }
 
 /// A mono8 image message.
 pub fn mono8(width: u32, height: u32, data: Vec<u8>, t: f64, frame: &str) -> Image {
-    Image { header: header(t, frame), height, width, encoding: "mono8".into(), is_bigendian: 0, step: width, data }
+    Image {
+        header: header(t, frame),
+        height,
+        width,
+        encoding: "mono8".into(),
+        is_bigendian: 0,
+        step: width,
+        data,
+    }
 }
 
 /// `/tf_static` content: every named camera's optical frame in the world frame.
@@ -78,7 +113,19 @@ pub fn optical_frames_tf(cameras: &[(String, Camera)]) -> TfMessage {
             TransformStamped {
                 header: header(0.0, WORLD_FRAME),
                 child_frame_id: optical_frame(name),
-                transform: Transform { translation: Vector3 { x: t.x as f64, y: t.y as f64, z: t.z as f64 }, rotation: Quaternion { x: q.x as f64, y: q.y as f64, z: q.z as f64, w: q.w as f64 } },
+                transform: Transform {
+                    translation: Vector3 {
+                        x: t.x as f64,
+                        y: t.y as f64,
+                        z: t.z as f64,
+                    },
+                    rotation: Quaternion {
+                        x: q.x as f64,
+                        y: q.y as f64,
+                        z: q.z as f64,
+                        w: q.w as f64,
+                    },
+                },
             }
         })
         .collect();
@@ -93,40 +140,68 @@ pub struct RecordingWriter {
 
 impl RecordingWriter {
     pub fn create(path: &Path) -> Result<Self> {
-        let file = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
         let writer = mcap::WriteOptions::new()
             .profile("ros2")
             .compression(Some(mcap::Compression::Zstd))
             .create(BufWriter::new(file))
             .context("cannot start the MCAP file")?;
-        Ok(Self { writer, channels: HashMap::new(), sequence: 0 })
+        Ok(Self {
+            writer,
+            channels: HashMap::new(),
+            sequence: 0,
+        })
     }
 
     /// Write `msg` on `topic` (schema `(type name, ros2msg text)`), stamped `stamp`.
-    pub fn write<T: Serialize>(&mut self, topic: &str, schema: (&str, String), stamp: Time, msg: &T) -> Result<()> {
+    pub fn write<T: Serialize>(
+        &mut self,
+        topic: &str,
+        schema: (&str, String),
+        stamp: Time,
+        msg: &T,
+    ) -> Result<()> {
         self.write_raw(topic, schema, stamp.seconds(), &msgs::to_cdr(msg)?)
     }
 
     /// Write an already encoded CDR payload (e.g. copied from another recording) at `time` (s).
-    pub fn write_raw(&mut self, topic: &str, schema: (&str, String), time: f64, cdr: &[u8]) -> Result<()> {
+    pub fn write_raw(
+        &mut self,
+        topic: &str,
+        schema: (&str, String),
+        time: f64,
+        cdr: &[u8],
+    ) -> Result<()> {
         let channel = match self.channels.get(topic) {
             Some(&c) => c,
             None => {
-                let schema_id = self.writer.add_schema(schema.0, "ros2msg", schema.1.as_bytes())?;
-                let c = self.writer.add_channel(schema_id, topic, "cdr", &BTreeMap::new())?;
+                let schema_id = self
+                    .writer
+                    .add_schema(schema.0, "ros2msg", schema.1.as_bytes())?;
+                let c = self
+                    .writer
+                    .add_channel(schema_id, topic, "cdr", &BTreeMap::new())?;
                 self.channels.insert(topic.to_string(), c);
                 c
             }
         };
         self.sequence += 1;
         let t = Time::from_seconds(time).nanoseconds();
-        let header = mcap::records::MessageHeader { channel_id: channel, sequence: self.sequence, log_time: t, publish_time: t };
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: self.sequence,
+            log_time: t,
+            publish_time: t,
+        };
         self.writer.write_to_known_channel(&header, cdr)?;
         Ok(())
     }
 
     pub fn finish(mut self) -> Result<()> {
-        self.writer.finish().context("cannot finish the MCAP file")?;
+        self.writer
+            .finish()
+            .context("cannot finish the MCAP file")?;
         Ok(())
     }
 }
@@ -142,22 +217,40 @@ pub struct RawMessage {
 /// Every message of an MCAP file in file order. A damaged or truncated tail ends the list and is
 /// reported in the second value instead of failing the whole read.
 pub fn read_messages(path: &Path) -> Result<(Vec<RawMessage>, Option<String>)> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read recording {}", path.display()))?;
+    let bytes =
+        std::fs::read(path).with_context(|| format!("cannot read recording {}", path.display()))?;
     let mut out = Vec::new();
     let stream = match mcap::MessageStream::new(&bytes) {
         Ok(s) => s,
-        Err(e) => return Ok((out, Some(format!("{} is not a readable MCAP file: {e}", path.display())))),
+        Err(e) => {
+            return Ok((
+                out,
+                Some(format!(
+                    "{} is not a readable MCAP file: {e}",
+                    path.display()
+                )),
+            ));
+        }
     };
     for m in stream {
         match m {
             Ok(m) => out.push(RawMessage {
                 topic: m.channel.topic.clone(),
-                schema: m.channel.schema.as_ref().map(|s| s.name.clone()).unwrap_or_default(),
+                schema: m
+                    .channel
+                    .schema
+                    .as_ref()
+                    .map(|s| s.name.clone())
+                    .unwrap_or_default(),
                 time: m.log_time as f64 * 1e-9,
                 data: m.data.into_owned(),
             }),
             Err(e) => {
-                let report = format!("{} is damaged after {} messages: {e}", path.display(), out.len());
+                let report = format!(
+                    "{} is damaged after {} messages: {e}",
+                    path.display(),
+                    out.len()
+                );
                 return Ok((out, Some(report)));
             }
         }
@@ -178,8 +271,17 @@ mod tests {
         let mut w = RecordingWriter::create(&path).unwrap();
         for k in 0..200 {
             let t = Time::from_seconds(k as f64 * 0.01);
-            let js = JointState { header: Header { stamp: t, frame_id: String::new() }, name: vec!["j".into()], position: vec![k as f64], ..Default::default() };
-            w.write(JOINT_STATES, msgs::schema::joint_state(), t, &js).unwrap();
+            let js = JointState {
+                header: Header {
+                    stamp: t,
+                    frame_id: String::new(),
+                },
+                name: vec!["j".into()],
+                position: vec![k as f64],
+                ..Default::default()
+            };
+            w.write(JOINT_STATES, msgs::schema::joint_state(), t, &js)
+                .unwrap();
         }
         w.finish().unwrap();
         let (msgs_read, problem) = read_messages(&path).unwrap();
@@ -200,7 +302,11 @@ mod tests {
         // Cut inside the first chunk: its messages are lost, and that is reported too.
         std::fs::write(dir.join("cut2.mcap"), &bytes[..100]).unwrap();
         let (partial, problem) = read_messages(&dir.join("cut2.mcap")).unwrap();
-        assert!(problem.is_some() && partial.len() < 200, "{} messages from 100 bytes", partial.len());
+        assert!(
+            problem.is_some() && partial.len() < 200,
+            "{} messages from 100 bytes",
+            partial.len()
+        );
         std::fs::write(dir.join("junk.mcap"), b"not an mcap").unwrap();
         let (none, problem) = read_messages(&dir.join("junk.mcap")).unwrap();
         assert!(none.is_empty() && problem.is_some());

@@ -21,8 +21,24 @@ pub struct Camera {
 
 impl Camera {
     /// From OpenCV / ROS `CameraInfo` intrinsics (pixel centres at integer coordinates).
-    pub fn from_opencv(width: u32, height: u32, fx: f32, fy: f32, cx: f32, cy: f32, world_to_camera: Pose) -> Self {
-        Self { width, height, fx, fy, cx: cx + 0.5, cy: cy + 0.5, world_to_camera }
+    pub fn from_opencv(
+        width: u32,
+        height: u32,
+        fx: f32,
+        fy: f32,
+        cx: f32,
+        cy: f32,
+        world_to_camera: Pose,
+    ) -> Self {
+        Self {
+            width,
+            height,
+            fx,
+            fy,
+            cx: cx + 0.5,
+            cy: cy + 0.5,
+            world_to_camera,
+        }
     }
 
     /// A camera at `eye` looking at `target`, image y pointing as close to world -z as possible.
@@ -35,13 +51,25 @@ impl Camera {
         let rot = Mat3::from_cols(x, y, z).transpose();
         let q = glam::Quat::from_mat3(&rot).normalize();
         let world_to_camera = Pose::new(-(q * eye), q);
-        Self { width, height, fx, fy: fx, cx: width as f32 / 2.0, cy: height as f32 / 2.0, world_to_camera }
+        Self {
+            width,
+            height,
+            fx,
+            fy: fx,
+            cx: width as f32 / 2.0,
+            cy: height as f32 / 2.0,
+            world_to_camera,
+        }
     }
 
     /// Project a world point to continuous pixel coordinates and depth.
     pub fn project(&self, p: Vec3) -> (f32, f32, f32) {
         let c = self.world_to_camera.transform_point(p);
-        (self.fx * c.x / c.z + self.cx, self.fy * c.y / c.z + self.cy, c.z)
+        (
+            self.fx * c.x / c.z + self.cx,
+            self.fy * c.y / c.z + self.cy,
+            c.z,
+        )
     }
 
     pub fn rotation(&self) -> Mat3 {
@@ -55,7 +83,13 @@ mod tests {
 
     #[test]
     fn look_at_puts_the_target_at_the_principal_point_and_world_up_at_image_up() {
-        let cam = Camera::look_at(640, 360, 400.0, Vec3::new(1.0, -0.5, 0.8), Vec3::new(0.0, 0.1, 0.0));
+        let cam = Camera::look_at(
+            640,
+            360,
+            400.0,
+            Vec3::new(1.0, -0.5, 0.8),
+            Vec3::new(0.0, 0.1, 0.0),
+        );
         let (u, v, z) = cam.project(Vec3::new(0.0, 0.1, 0.0));
         assert!((u - 320.0).abs() < 1e-3 && (v - 180.0).abs() < 1e-3 && z > 0.0);
         // A point above the target appears higher in the image (smaller v).

@@ -80,10 +80,19 @@ fn evaluate(g: &Projected, p: Vec2, s: &RenderSettings) -> Option<(f32, f32, Vec
 }
 
 fn composite(list: &[u32], projected: &[Option<Projected>], p: Vec2, s: &RenderSettings) -> Pixel {
-    let mut out = Pixel { colour: Vec3::ZERO, depth: 0.0, t: 1.0, last: 0 };
+    let mut out = Pixel {
+        colour: Vec3::ZERO,
+        depth: 0.0,
+        t: 1.0,
+        last: 0,
+    };
     for (k, &gi) in list.iter().enumerate() {
-        let Some(g) = &projected[gi as usize] else { continue };
-        let Some((alpha, _, _)) = evaluate(g, p, s) else { continue };
+        let Some(g) = &projected[gi as usize] else {
+            continue;
+        };
+        let Some((alpha, _, _)) = evaluate(g, p, s) else {
+            continue;
+        };
         let next_t = out.t * (1.0 - alpha);
         if next_t < s.min_transmittance {
             break;
@@ -98,7 +107,10 @@ fn composite(list: &[u32], projected: &[Option<Projected>], p: Vec2, s: &RenderS
 
 impl CpuRenderer {
     pub fn new(settings: RenderSettings) -> Self {
-        Self { settings, frame: None }
+        Self {
+            settings,
+            frame: None,
+        }
     }
 
     /// Render `cloud` into `camera` over `roi` (clamped to the image).
@@ -107,7 +119,10 @@ impl CpuRenderer {
         let roi = roi.clamped(camera);
         // Gaussians whose conservative footprint misses the window are culled before the full
         // projection: identical output, and a small window costs little more than its pixels.
-        let (lo, hi) = (Vec2::new(roi.x0 as f32, roi.y0 as f32), Vec2::new(roi.x1 as f32, roi.y1 as f32));
+        let (lo, hi) = (
+            Vec2::new(roi.x0 as f32, roi.y0 as f32),
+            Vec2::new(roi.x1 as f32, roi.y1 as f32),
+        );
         let projected: Vec<Option<Projected>> = (0..cloud.len())
             .into_par_iter()
             .with_min_len(256)
@@ -125,7 +140,10 @@ impl CpuRenderer {
         let tiles = if roi.pixels() == 0 {
             (0, 0)
         } else {
-            ((roi.x1 - 1) / tile - tile_origin.0 + 1, (roi.y1 - 1) / tile - tile_origin.1 + 1)
+            (
+                (roi.x1 - 1) / tile - tile_origin.0 + 1,
+                (roi.y1 - 1) / tile - tile_origin.1 + 1,
+            )
         };
         // Bin: one key per (tile, Gaussian) overlap of the square around the cut-off ellipse.
         let mut keys: Vec<(u64, u32)> = Vec::new();
@@ -140,8 +158,14 @@ impl CpuRenderer {
                 if !(x0 <= x1 && y0 <= y1) {
                     continue;
                 }
-                let (tx0, tx1) = (x0 as u32 / tile - tile_origin.0, x1 as u32 / tile - tile_origin.0);
-                let (ty0, ty1) = (y0 as u32 / tile - tile_origin.1, y1 as u32 / tile - tile_origin.1);
+                let (tx0, tx1) = (
+                    x0 as u32 / tile - tile_origin.0,
+                    x1 as u32 / tile - tile_origin.0,
+                );
+                let (ty0, ty1) = (
+                    y0 as u32 / tile - tile_origin.1,
+                    y1 as u32 / tile - tile_origin.1,
+                );
                 for ty in ty0..=ty1 {
                     for tx in tx0..=tx1 {
                         let t = (ty * tiles.0 + tx) as u64;
@@ -179,40 +203,71 @@ impl CpuRenderer {
             .zip(split_rows(&mut last, &bands, width))
             .enumerate()
             .collect::<Vec<_>>();
-        band_slices.par_iter_mut().for_each(|(ty, ((((col, alp), dep), ft), la))| {
-            let (row0, row1) = bands[*ty];
-            for y in row0..row1 {
-                for x in roi.x0..roi.x1 {
-                    let tx = x / tile - tile_origin.0;
-                    let (a, b) = ranges[(*ty as u32 * tiles.0 + tx) as usize];
-                    let px = composite(&order[a as usize..b as usize], &projected, Vec2::new(x as f32 + 0.5, y as f32 + 0.5), s);
-                    let i = (y - row0) as usize * width + (x - roi.x0) as usize;
-                    col[i] = px.colour + px.t * s.background;
-                    alp[i] = 1.0 - px.t;
-                    dep[i] = px.depth;
-                    ft[i] = px.t;
-                    la[i] = px.last;
+        band_slices
+            .par_iter_mut()
+            .for_each(|(ty, ((((col, alp), dep), ft), la))| {
+                let (row0, row1) = bands[*ty];
+                for y in row0..row1 {
+                    for x in roi.x0..roi.x1 {
+                        let tx = x / tile - tile_origin.0;
+                        let (a, b) = ranges[(*ty as u32 * tiles.0 + tx) as usize];
+                        let px = composite(
+                            &order[a as usize..b as usize],
+                            &projected,
+                            Vec2::new(x as f32 + 0.5, y as f32 + 0.5),
+                            s,
+                        );
+                        let i = (y - row0) as usize * width + (x - roi.x0) as usize;
+                        col[i] = px.colour + px.t * s.background;
+                        alp[i] = 1.0 - px.t;
+                        dep[i] = px.depth;
+                        ft[i] = px.t;
+                        la[i] = px.last;
+                    }
                 }
-            }
+            });
+        self.frame = Some(Frame {
+            camera: *camera,
+            roi,
+            projected,
+            tile_origin,
+            tiles,
+            order,
+            ranges,
+            final_t,
+            last,
         });
-        self.frame = Some(Frame { camera: *camera, roi, projected, tile_origin, tiles, order, ranges, final_t, last });
-        RenderOutput { roi: Some(roi), colour, alpha, depth }
+        RenderOutput {
+            roi: Some(roi),
+            colour,
+            alpha,
+            depth,
+        }
     }
 
     /// Gradients of a loss with respect to `cloud`, given its gradients with respect to the images
     /// of the last `forward` (which must have rendered this same cloud).
     pub fn backward(&self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads> {
-        let Some(f) = &self.frame else { bail!("backward called before forward") };
+        let Some(f) = &self.frame else {
+            bail!("backward called before forward")
+        };
         let s = &self.settings;
         let n_px = f.roi.pixels();
         if d_image.colour.len() != n_px
             || !(d_image.alpha.is_empty() || d_image.alpha.len() == n_px)
             || !(d_image.depth.is_empty() || d_image.depth.len() == n_px)
         {
-            bail!("pixel gradients do not match the rendered window ({} pixels)", n_px);
+            bail!(
+                "pixel gradients do not match the rendered window ({} pixels)",
+                n_px
+            );
         }
         if f.projected.len() != cloud.len() {
-            bail!("backward for a cloud of {} Gaussians after rendering {}", cloud.len(), f.projected.len());
+            bail!(
+                "backward for a cloud of {} Gaussians after rendering {}",
+                cloud.len(),
+                f.projected.len()
+            );
         }
         let tile = s.tile.max(1);
         let width = f.roi.width() as usize;
@@ -232,25 +287,36 @@ impl CpuRenderer {
                 rest = tail;
             }
         }
-        band_parts.par_iter_mut().enumerate().for_each(|(ty, parts)| {
-            let (row0, row1) = bands[ty];
-            let band_start = f.ranges[ty * f.tiles.0 as usize].0 as usize;
-            for y in row0..row1 {
-                for x in f.roi.x0..f.roi.x1 {
-                    let i = (y - f.roi.y0) as usize * width + (x - f.roi.x0) as usize;
-                    let tx = x / tile - f.tile_origin.0;
-                    let (a, _) = f.ranges[(ty as u32 * f.tiles.0 + tx) as usize];
-                    let grads = PixelUpstream {
-                        colour: d_image.colour[i],
-                        alpha: d_image.alpha.get(i).copied().unwrap_or(0.0),
-                        depth: d_image.depth.get(i).copied().unwrap_or(0.0),
-                    };
-                    let list = &f.order[a as usize..a as usize + f.last[i] as usize];
-                    let offset = a as usize - band_start;
-                    backward_pixel(list, &f.projected, Vec2::new(x as f32 + 0.5, y as f32 + 0.5), f.final_t[i], &grads, s, &mut parts[offset..]);
+        band_parts
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(ty, parts)| {
+                let (row0, row1) = bands[ty];
+                let band_start = f.ranges[ty * f.tiles.0 as usize].0 as usize;
+                for y in row0..row1 {
+                    for x in f.roi.x0..f.roi.x1 {
+                        let i = (y - f.roi.y0) as usize * width + (x - f.roi.x0) as usize;
+                        let tx = x / tile - f.tile_origin.0;
+                        let (a, _) = f.ranges[(ty as u32 * f.tiles.0 + tx) as usize];
+                        let grads = PixelUpstream {
+                            colour: d_image.colour[i],
+                            alpha: d_image.alpha.get(i).copied().unwrap_or(0.0),
+                            depth: d_image.depth.get(i).copied().unwrap_or(0.0),
+                        };
+                        let list = &f.order[a as usize..a as usize + f.last[i] as usize];
+                        let offset = a as usize - band_start;
+                        backward_pixel(
+                            list,
+                            &f.projected,
+                            Vec2::new(x as f32 + 0.5, y as f32 + 0.5),
+                            f.final_t[i],
+                            &grads,
+                            s,
+                            &mut parts[offset..],
+                        );
+                    }
                 }
-            }
-        });
+            });
         // Sum partials per Gaussian in list order (fixed), then chain through the projection.
         let mut per_gaussian = vec![ProjectedGrad::default(); cloud.len()];
         let mut touched = vec![false; cloud.len()];
@@ -267,7 +333,13 @@ impl CpuRenderer {
         let grads: Vec<ParamGrad> = (0..cloud.len())
             .into_par_iter()
             .with_min_len(256)
-            .map(|i| if touched[i] { project::project_backward(&cloud.get(i), &f.camera, s, &per_gaussian[i]) } else { ParamGrad::default() })
+            .map(|i| {
+                if touched[i] {
+                    project::project_backward(&cloud.get(i), &f.camera, s, &per_gaussian[i])
+                } else {
+                    ParamGrad::default()
+                }
+            })
             .collect();
         let mut out = CloudGrads::zeros(cloud.len());
         for (i, g) in grads.into_iter().enumerate() {
@@ -290,16 +362,31 @@ struct PixelUpstream {
 /// Walk one pixel's contributors back to front. With the colour "behind" each Gaussian, normalised
 /// to the transmittance just after it (`behind`), `d out / d alpha_i = T_i (v_i - behind_i)` for
 /// every channel: colour (v = c, background behind the last), alpha (v = 1, 0 behind) and depth.
-fn backward_pixel(list: &[u32], projected: &[Option<Projected>], p: Vec2, final_t: f32, up: &PixelUpstream, s: &RenderSettings, parts: &mut [Partial]) {
+fn backward_pixel(
+    list: &[u32],
+    projected: &[Option<Projected>],
+    p: Vec2,
+    final_t: f32,
+    up: &PixelUpstream,
+    s: &RenderSettings,
+    parts: &mut [Partial],
+) {
     let mut t_after = final_t;
     let mut behind_colour = s.background;
     let mut behind_alpha = 0.0f32;
     let mut behind_depth = 0.0f32;
     for k in (0..list.len()).rev() {
-        let Some(g) = &projected[list[k] as usize] else { continue };
-        let Some((alpha, gauss, d)) = evaluate(g, p, s) else { continue };
+        let Some(g) = &projected[list[k] as usize] else {
+            continue;
+        };
+        let Some((alpha, gauss, d)) = evaluate(g, p, s) else {
+            continue;
+        };
         let t_before = t_after / (1.0 - alpha);
-        let d_alpha = t_before * ((g.colour - behind_colour).dot(up.colour) + (1.0 - behind_alpha) * up.alpha + (g.depth - behind_depth) * up.depth);
+        let d_alpha = t_before
+            * ((g.colour - behind_colour).dot(up.colour)
+                + (1.0 - behind_alpha) * up.alpha
+                + (g.depth - behind_depth) * up.depth);
         let weight = alpha * t_before;
         let part = &mut parts[k];
         part.colour += weight * up.colour;

@@ -33,7 +33,8 @@ use serde::{Deserialize, Serialize};
 pub trait Renderer {
     fn name(&self) -> String;
     fn settings(&self) -> &RenderSettings;
-    fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi) -> Result<RenderOutput>;
+    fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi)
+    -> Result<RenderOutput>;
     fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads>;
 }
 
@@ -60,7 +61,12 @@ impl Renderer for cpu::CpuRenderer {
     fn settings(&self) -> &RenderSettings {
         &self.settings
     }
-    fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi) -> Result<RenderOutput> {
+    fn forward(
+        &mut self,
+        cloud: &GaussianCloud,
+        camera: &Camera,
+        roi: Roi,
+    ) -> Result<RenderOutput> {
         Ok(cpu::CpuRenderer::forward(self, cloud, camera, roi))
     }
     fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads> {
@@ -75,7 +81,12 @@ impl Renderer for gpu::GpuRenderer {
     fn settings(&self) -> &RenderSettings {
         &self.settings
     }
-    fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi) -> Result<RenderOutput> {
+    fn forward(
+        &mut self,
+        cloud: &GaussianCloud,
+        camera: &Camera,
+        roi: Roi,
+    ) -> Result<RenderOutput> {
         gpu::GpuRenderer::forward(self, cloud, camera, roi)
     }
     fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads> {
@@ -127,14 +138,24 @@ pub struct Roi {
 
 impl Roi {
     pub fn full(camera: &Camera) -> Self {
-        Self { x0: 0, y0: 0, x1: camera.width, y1: camera.height }
+        Self {
+            x0: 0,
+            y0: 0,
+            x1: camera.width,
+            y1: camera.height,
+        }
     }
 
     /// Clamp to the image; an empty window stays empty.
     pub fn clamped(self, camera: &Camera) -> Self {
         let x1 = self.x1.min(camera.width);
         let y1 = self.y1.min(camera.height);
-        Self { x0: self.x0.min(x1), y0: self.y0.min(y1), x1, y1 }
+        Self {
+            x0: self.x0.min(x1),
+            y0: self.y0.min(y1),
+            x1,
+            y1,
+        }
     }
 
     pub fn width(&self) -> u32 {
@@ -212,28 +233,46 @@ impl GaussianCloud {
 
     /// The static scene: Gaussians bonded to no particle.
     pub fn static_scene(world: &World) -> Self {
-        Self::from_world_where(world, |i| world.gaussians.parent[i] == crate::world::NO_PARENT)
+        Self::from_world_where(world, |i| {
+            world.gaussians.parent[i] == crate::world::NO_PARENT
+        })
     }
 }
 
 /// The pixel window covering the projected 3-sigma extent of the Gaussians `indices` in `camera`,
 /// plus `margin` pixels, clamped to the image (empty if none is in front of the camera).
-pub fn footprint_roi(cloud: &GaussianCloud, indices: &[usize], camera: &Camera, margin: f32) -> Roi {
+pub fn footprint_roi(
+    cloud: &GaussianCloud,
+    indices: &[usize],
+    camera: &Camera,
+    margin: f32,
+) -> Roi {
     let (mut lo, mut hi) = (glam::Vec2::splat(f32::MAX), glam::Vec2::splat(f32::MIN));
     for &i in indices {
         let (u, v, z) = camera.project(cloud.mean[i]);
         if z.is_nan() || z <= 1e-3 {
             continue;
         }
-        let r = 3.0 * cloud.log_scale[i].max_element().exp() * camera.fx.max(camera.fy) / z + margin;
+        let r =
+            3.0 * cloud.log_scale[i].max_element().exp() * camera.fx.max(camera.fy) / z + margin;
         lo = lo.min(glam::Vec2::new(u - r, v - r));
         hi = hi.max(glam::Vec2::new(u + r, v + r));
     }
     if lo.x > hi.x {
-        return Roi { x0: 0, y0: 0, x1: 0, y1: 0 };
+        return Roi {
+            x0: 0,
+            y0: 0,
+            x1: 0,
+            y1: 0,
+        };
     }
     let clamp = |x: f32, max: u32| x.clamp(0.0, max as f32) as u32;
-    Roi { x0: clamp(lo.x.floor(), camera.width), y0: clamp(lo.y.floor(), camera.height), x1: clamp(hi.x.ceil(), camera.width), y1: clamp(hi.y.ceil(), camera.height) }
+    Roi {
+        x0: clamp(lo.x.floor(), camera.width),
+        y0: clamp(lo.y.floor(), camera.height),
+        x1: clamp(hi.x.ceil(), camera.width),
+        y1: clamp(hi.y.ceil(), camera.height),
+    }
 }
 
 /// What a render produces over its window, row-major.
@@ -255,7 +294,8 @@ impl RenderOutput {
             let c = (self.colour[i].clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round();
             *px = image::Rgb([c.x as u8, c.y as u8, c.z as u8]);
         }
-        img.save(path).with_context(|| format!("cannot write {}", path.display()))
+        img.save(path)
+            .with_context(|| format!("cannot write {}", path.display()))
     }
 }
 

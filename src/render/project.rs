@@ -71,9 +71,21 @@ fn rotation_matrix(q: Vec4) -> Mat3 {
     let (x, y, z, w) = (q.x, q.y, q.z, q.w);
     // Columns of R.
     Mat3::from_cols(
-        Vec3::new(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
-        Vec3::new(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
-        Vec3::new(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
+        Vec3::new(
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y + w * z),
+            2.0 * (x * z - w * y),
+        ),
+        Vec3::new(
+            2.0 * (x * y - w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z + w * x),
+        ),
+        Vec3::new(
+            2.0 * (x * z + w * y),
+            2.0 * (y * z - w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ),
     )
 }
 
@@ -105,13 +117,20 @@ struct Intermediate {
     abc: Vec3,
 }
 
-fn forward_intermediate(g: &GaussianParams, cam: &Camera, s: &RenderSettings) -> Option<Intermediate> {
+fn forward_intermediate(
+    g: &GaussianParams,
+    cam: &Camera,
+    s: &RenderSettings,
+) -> Option<Intermediate> {
     let w = cam.rotation();
     let t = w * g.mean + cam.world_to_camera.translation;
     if !(t.z >= s.near) || !t.is_finite() {
         return None;
     }
-    let lim = Vec2::new(1.3 * cam.width as f32 / (2.0 * cam.fx), 1.3 * cam.height as f32 / (2.0 * cam.fy));
+    let lim = Vec2::new(
+        1.3 * cam.width as f32 / (2.0 * cam.fx),
+        1.3 * cam.height as f32 / (2.0 * cam.fy),
+    );
     let raw = Vec2::new(t.x / t.z, t.y / t.z);
     let u = raw.clamp(-lim, lim);
     let clamped = [raw.x != u.x, raw.y != u.y];
@@ -123,24 +142,53 @@ fn forward_intermediate(g: &GaussianParams, cam: &Camera, s: &RenderSettings) ->
     }
     let q = g.rotation / q_norm;
     let r = rotation_matrix(q);
-    let d = Vec3::new((2.0 * g.log_scale.x).exp(), (2.0 * g.log_scale.y).exp(), (2.0 * g.log_scale.z).exp());
+    let d = Vec3::new(
+        (2.0 * g.log_scale.x).exp(),
+        (2.0 * g.log_scale.y).exp(),
+        (2.0 * g.log_scale.z).exp(),
+    );
     let sigma = r * Mat3::from_diagonal(d) * r.transpose();
     let m = w * sigma * w.transpose();
-    let abc = Vec3::new(j0.dot(m * j0) + s.blur, j0.dot(m * j1), j1.dot(m * j1) + s.blur);
-    Some(Intermediate { t, u, clamped, j0, j1, m, w, r, q, q_norm, d, abc })
+    let abc = Vec3::new(
+        j0.dot(m * j0) + s.blur,
+        j0.dot(m * j1),
+        j1.dot(m * j1) + s.blur,
+    );
+    Some(Intermediate {
+        t,
+        u,
+        clamped,
+        j0,
+        j1,
+        m,
+        w,
+        r,
+        q,
+        q_norm,
+        d,
+        abc,
+    })
 }
 
 /// A cheap conservative bound of `project`'s footprint: image-plane centre and a radius at least
 /// as large as `Projected::radius` (from sqrt(lambda_max) <= |J|_F * max scale, blur added), or
 /// `None` when the Gaussian is culled anyway. Lets a window skip most of the scene cheaply.
-pub fn footprint_bound(g: &GaussianParams, cam: &Camera, s: &RenderSettings) -> Option<(Vec2, f32)> {
+pub fn footprint_bound(
+    g: &GaussianParams,
+    cam: &Camera,
+    s: &RenderSettings,
+) -> Option<(Vec2, f32)> {
     let t = cam.world_to_camera.rotation * g.mean + cam.world_to_camera.translation;
     if !(t.z >= s.near) || !t.is_finite() {
         return None;
     }
-    let lim = Vec2::new(1.3 * cam.width as f32 / (2.0 * cam.fx), 1.3 * cam.height as f32 / (2.0 * cam.fy));
+    let lim = Vec2::new(
+        1.3 * cam.width as f32 / (2.0 * cam.fx),
+        1.3 * cam.height as f32 / (2.0 * cam.fy),
+    );
     let u = Vec2::new(t.x / t.z, t.y / t.z).clamp(-lim, lim);
-    let jf2 = (cam.fx * cam.fx * (1.0 + u.x * u.x) + cam.fy * cam.fy * (1.0 + u.y * u.y)) / (t.z * t.z);
+    let jf2 =
+        (cam.fx * cam.fx * (1.0 + u.x * u.x) + cam.fy * cam.fy * (1.0 + u.y * u.y)) / (t.z * t.z);
     let s_max = g.log_scale.max_element().exp();
     let radius = s.cutoff_sigma * (jf2 * s_max * s_max + s.blur).sqrt() * 1.001 + 1e-3;
     let centre = Vec2::new(cam.fx * t.x / t.z + cam.cx, cam.fy * t.y / t.z + cam.cy);
@@ -159,12 +207,27 @@ pub fn project(g: &GaussianParams, cam: &Camera, s: &RenderSettings) -> Option<P
     let mid = 0.5 * (a + c);
     let lambda_max = mid + (mid * mid - det).max(0.0).sqrt();
     let radius = s.cutoff_sigma * lambda_max.sqrt();
-    let mean = Vec2::new(cam.fx * it.t.x / it.t.z + cam.cx, cam.fy * it.t.y / it.t.z + cam.cy);
-    Some(Projected { mean, conic, depth: it.t.z, radius, opacity: sigmoid(g.opacity_logit), colour: g.colour })
+    let mean = Vec2::new(
+        cam.fx * it.t.x / it.t.z + cam.cx,
+        cam.fy * it.t.y / it.t.z + cam.cy,
+    );
+    Some(Projected {
+        mean,
+        conic,
+        depth: it.t.z,
+        radius,
+        opacity: sigmoid(g.opacity_logit),
+        colour: g.colour,
+    })
 }
 
 /// Chain the image-plane gradient `dp` back to the Gaussian's parameters.
-pub fn project_backward(g: &GaussianParams, cam: &Camera, s: &RenderSettings, dp: &ProjectedGrad) -> ParamGrad {
+pub fn project_backward(
+    g: &GaussianParams,
+    cam: &Camera,
+    s: &RenderSettings,
+    dp: &ProjectedGrad,
+) -> ParamGrad {
     let Some(it) = forward_intermediate(g, cam, s) else {
         return ParamGrad::default();
     };
@@ -219,15 +282,42 @@ pub fn project_backward(g: &GaussianParams, cam: &Camera, s: &RenderSettings, dp
     // R(q) for the unit quaternion, then the normalisation.
     let (x, y, zq, w) = (it.q.x, it.q.y, it.q.z, it.q.w);
     // dR/dx etc. as matrices (columns), contracted with g_r.
-    let dr_dx = Mat3::from_cols(Vec3::new(0.0, 2.0 * y, 2.0 * zq), Vec3::new(2.0 * y, -4.0 * x, 2.0 * w), Vec3::new(2.0 * zq, -2.0 * w, -4.0 * x));
-    let dr_dy = Mat3::from_cols(Vec3::new(-4.0 * y, 2.0 * x, -2.0 * w), Vec3::new(2.0 * x, 0.0, 2.0 * zq), Vec3::new(2.0 * w, 2.0 * zq, -4.0 * y));
-    let dr_dz = Mat3::from_cols(Vec3::new(-4.0 * zq, 2.0 * w, 2.0 * x), Vec3::new(-2.0 * w, -4.0 * zq, 2.0 * y), Vec3::new(2.0 * x, 2.0 * y, 0.0));
-    let dr_dw = Mat3::from_cols(Vec3::new(0.0, 2.0 * zq, -2.0 * y), Vec3::new(-2.0 * zq, 0.0, 2.0 * x), Vec3::new(2.0 * y, -2.0 * x, 0.0));
-    let g_q = Vec4::new(frobenius(&g_r, &dr_dx), frobenius(&g_r, &dr_dy), frobenius(&g_r, &dr_dz), frobenius(&g_r, &dr_dw));
+    let dr_dx = Mat3::from_cols(
+        Vec3::new(0.0, 2.0 * y, 2.0 * zq),
+        Vec3::new(2.0 * y, -4.0 * x, 2.0 * w),
+        Vec3::new(2.0 * zq, -2.0 * w, -4.0 * x),
+    );
+    let dr_dy = Mat3::from_cols(
+        Vec3::new(-4.0 * y, 2.0 * x, -2.0 * w),
+        Vec3::new(2.0 * x, 0.0, 2.0 * zq),
+        Vec3::new(2.0 * w, 2.0 * zq, -4.0 * y),
+    );
+    let dr_dz = Mat3::from_cols(
+        Vec3::new(-4.0 * zq, 2.0 * w, 2.0 * x),
+        Vec3::new(-2.0 * w, -4.0 * zq, 2.0 * y),
+        Vec3::new(2.0 * x, 2.0 * y, 0.0),
+    );
+    let dr_dw = Mat3::from_cols(
+        Vec3::new(0.0, 2.0 * zq, -2.0 * y),
+        Vec3::new(-2.0 * zq, 0.0, 2.0 * x),
+        Vec3::new(2.0 * y, -2.0 * x, 0.0),
+    );
+    let g_q = Vec4::new(
+        frobenius(&g_r, &dr_dx),
+        frobenius(&g_r, &dr_dy),
+        frobenius(&g_r, &dr_dz),
+        frobenius(&g_r, &dr_dw),
+    );
     let rotation = (g_q - it.q * it.q.dot(g_q)) / it.q_norm;
 
     let o = sigmoid(g.opacity_logit);
-    ParamGrad { mean, rotation, log_scale, opacity_logit: dp.opacity * o * (1.0 - o), colour: dp.colour }
+    ParamGrad {
+        mean,
+        rotation,
+        log_scale,
+        opacity_logit: dp.opacity * o * (1.0 - o),
+        colour: dp.colour,
+    }
 }
 
 #[cfg(test)]
@@ -252,11 +342,21 @@ mod tests {
 
     /// A scalar of all projected outputs with fixed weights, and its gradient as a ProjectedGrad.
     fn weights() -> ProjectedGrad {
-        ProjectedGrad { mean: Vec2::new(0.3, -0.7), conic: Vec3::new(40.0, -25.0, 30.0), depth: 2.0, opacity: -1.5, colour: Vec3::new(0.4, 0.1, -0.2) }
+        ProjectedGrad {
+            mean: Vec2::new(0.3, -0.7),
+            conic: Vec3::new(40.0, -25.0, 30.0),
+            depth: 2.0,
+            opacity: -1.5,
+            colour: Vec3::new(0.4, 0.1, -0.2),
+        }
     }
 
     fn scalar(p: &Projected, w: &ProjectedGrad) -> f64 {
-        (p.mean.dot(w.mean) + p.conic.dot(w.conic) + p.depth * w.depth + p.opacity * w.opacity + p.colour.dot(w.colour)) as f64
+        (p.mean.dot(w.mean)
+            + p.conic.dot(w.conic)
+            + p.depth * w.depth
+            + p.opacity * w.opacity
+            + p.colour.dot(w.colour)) as f64
     }
 
     #[test]
@@ -268,38 +368,109 @@ mod tests {
         let grad = project_backward(&g, &cam, &s, &w);
         let mut params: Vec<(String, f32, f32)> = Vec::new();
         let f = |g: &GaussianParams| scalar(&project(g, &cam, &s).unwrap(), &w);
-        let mut check = |name: &str, analytic: f32, set: &dyn Fn(&mut GaussianParams, f32), base: f32, h: f32| {
+        let mut check = |name: &str,
+                         analytic: f32,
+                         set: &dyn Fn(&mut GaussianParams, f32),
+                         base: f32,
+                         h: f32| {
             let mut gp = g;
             set(&mut gp, base + h);
             let up = f(&gp);
             set(&mut gp, base - h);
             let down = f(&gp);
-            params.push((name.to_string(), analytic, ((up - down) / (2.0 * h as f64)) as f32));
+            params.push((
+                name.to_string(),
+                analytic,
+                ((up - down) / (2.0 * h as f64)) as f32,
+            ));
         };
         check("mean.x", grad.mean.x, &|g, v| g.mean.x = v, g.mean.x, 1e-3);
         check("mean.y", grad.mean.y, &|g, v| g.mean.y = v, g.mean.y, 1e-3);
         check("mean.z", grad.mean.z, &|g, v| g.mean.z = v, g.mean.z, 1e-3);
-        check("rot.x", grad.rotation.x, &|g, v| g.rotation.x = v, g.rotation.x, 1e-3);
-        check("rot.y", grad.rotation.y, &|g, v| g.rotation.y = v, g.rotation.y, 1e-3);
-        check("rot.z", grad.rotation.z, &|g, v| g.rotation.z = v, g.rotation.z, 1e-3);
-        check("rot.w", grad.rotation.w, &|g, v| g.rotation.w = v, g.rotation.w, 1e-3);
-        check("scale.x", grad.log_scale.x, &|g, v| g.log_scale.x = v, g.log_scale.x, 1e-3);
-        check("scale.y", grad.log_scale.y, &|g, v| g.log_scale.y = v, g.log_scale.y, 1e-3);
-        check("scale.z", grad.log_scale.z, &|g, v| g.log_scale.z = v, g.log_scale.z, 1e-3);
-        check("opacity", grad.opacity_logit, &|g, v| g.opacity_logit = v, g.opacity_logit, 1e-3);
-        check("colour.y", grad.colour.y, &|g, v| g.colour.y = v, g.colour.y, 1e-3);
+        check(
+            "rot.x",
+            grad.rotation.x,
+            &|g, v| g.rotation.x = v,
+            g.rotation.x,
+            1e-3,
+        );
+        check(
+            "rot.y",
+            grad.rotation.y,
+            &|g, v| g.rotation.y = v,
+            g.rotation.y,
+            1e-3,
+        );
+        check(
+            "rot.z",
+            grad.rotation.z,
+            &|g, v| g.rotation.z = v,
+            g.rotation.z,
+            1e-3,
+        );
+        check(
+            "rot.w",
+            grad.rotation.w,
+            &|g, v| g.rotation.w = v,
+            g.rotation.w,
+            1e-3,
+        );
+        check(
+            "scale.x",
+            grad.log_scale.x,
+            &|g, v| g.log_scale.x = v,
+            g.log_scale.x,
+            1e-3,
+        );
+        check(
+            "scale.y",
+            grad.log_scale.y,
+            &|g, v| g.log_scale.y = v,
+            g.log_scale.y,
+            1e-3,
+        );
+        check(
+            "scale.z",
+            grad.log_scale.z,
+            &|g, v| g.log_scale.z = v,
+            g.log_scale.z,
+            1e-3,
+        );
+        check(
+            "opacity",
+            grad.opacity_logit,
+            &|g, v| g.opacity_logit = v,
+            g.opacity_logit,
+            1e-3,
+        );
+        check(
+            "colour.y",
+            grad.colour.y,
+            &|g, v| g.colour.y = v,
+            g.colour.y,
+            1e-3,
+        );
         for (name, analytic, numeric) in params {
             let tol = 0.01 * numeric.abs().max(analytic.abs()) + 1e-3;
-            assert!((analytic - numeric).abs() < tol, "{name}: analytic {analytic}, numeric {numeric}");
+            assert!(
+                (analytic - numeric).abs() < tol,
+                "{name}: analytic {analytic}, numeric {numeric}"
+            );
         }
     }
 
     #[test]
     fn clamped_jacobian_far_off_axis_still_has_consistent_gradients() {
         // A Gaussian far outside the field of view: x/z is clamped, gradients must follow the clamp.
-        let cam = Camera { world_to_camera: Pose::IDENTITY, ..camera() };
+        let cam = Camera {
+            world_to_camera: Pose::IDENTITY,
+            ..camera()
+        };
         let s = RenderSettings::default();
-        let g = GaussianParams { mean: Vec3::new(3.0, 0.1, 1.0), ..gaussian() };
+        let g = GaussianParams {
+            mean: Vec3::new(3.0, 0.1, 1.0),
+            ..gaussian()
+        };
         let w = weights();
         let grad = project_backward(&g, &cam, &s, &w);
         let f = |x: f32| {
@@ -308,23 +479,49 @@ mod tests {
             scalar(&project(&gp, &cam, &s).unwrap(), &w)
         };
         let numeric = ((f(3.0 + 1e-3) - f(3.0 - 1e-3)) / 2e-3) as f32;
-        assert!((grad.mean.x - numeric).abs() < 0.01 * numeric.abs() + 1e-3, "{} vs {}", grad.mean.x, numeric);
+        assert!(
+            (grad.mean.x - numeric).abs() < 0.01 * numeric.abs() + 1e-3,
+            "{} vs {}",
+            grad.mean.x,
+            numeric
+        );
     }
 
     #[test]
     fn isotropic_gaussian_facing_the_camera_has_the_pinhole_footprint() {
-        let cam = Camera { width: 100, height: 100, fx: 200.0, fy: 200.0, cx: 50.0, cy: 50.0, world_to_camera: Pose::IDENTITY };
+        let cam = Camera {
+            width: 100,
+            height: 100,
+            fx: 200.0,
+            fy: 200.0,
+            cx: 50.0,
+            cy: 50.0,
+            world_to_camera: Pose::IDENTITY,
+        };
         let s = RenderSettings::default();
         let sigma: f32 = 0.01;
-        let g = GaussianParams { mean: Vec3::new(0.0, 0.0, 2.0), rotation: Vec4::new(0.0, 0.0, 0.0, 1.0), log_scale: Vec3::splat(sigma.ln()), opacity_logit: 0.0, colour: Vec3::ONE };
+        let g = GaussianParams {
+            mean: Vec3::new(0.0, 0.0, 2.0),
+            rotation: Vec4::new(0.0, 0.0, 0.0, 1.0),
+            log_scale: Vec3::splat(sigma.ln()),
+            opacity_logit: 0.0,
+            colour: Vec3::ONE,
+        };
         let p = project(&g, &cam, &s).unwrap();
         let var = (200.0 * sigma / 2.0) * (200.0 * sigma / 2.0) + s.blur;
-        assert!((p.conic.x - 1.0 / var).abs() < 1e-5 && p.conic.y.abs() < 1e-7 && (p.conic.z - 1.0 / var).abs() < 1e-5);
+        assert!(
+            (p.conic.x - 1.0 / var).abs() < 1e-5
+                && p.conic.y.abs() < 1e-7
+                && (p.conic.z - 1.0 / var).abs() < 1e-5
+        );
         assert_eq!(p.mean, Vec2::new(50.0, 50.0));
         assert!((p.radius - 3.0 * var.sqrt()).abs() < 1e-4);
         // Rotating an isotropic Gaussian changes nothing.
         let q = Quat::from_euler(glam::EulerRot::XYZ, 0.4, 1.0, -0.3);
-        let g2 = GaussianParams { rotation: Vec4::new(q.x, q.y, q.z, q.w), ..g };
+        let g2 = GaussianParams {
+            rotation: Vec4::new(q.x, q.y, q.z, q.w),
+            ..g
+        };
         let p2 = project(&g2, &cam, &s).unwrap();
         assert!((p2.conic - p.conic).abs().max_element() < 1e-5);
     }
@@ -336,20 +533,41 @@ mod tests {
         for k in 0..200 {
             let f = k as f32;
             let g = GaussianParams {
-                mean: Vec3::new(0.1 * (f * 0.37).sin(), 0.1 * (f * 0.71).cos(), 0.05 * (f * 1.3).sin()),
+                mean: Vec3::new(
+                    0.1 * (f * 0.37).sin(),
+                    0.1 * (f * 0.71).cos(),
+                    0.05 * (f * 1.3).sin(),
+                ),
                 rotation: Vec4::new((f * 0.3).sin(), (f * 0.5).cos(), (f * 0.9).sin(), 1.0),
-                log_scale: Vec3::new(-4.0 + (f * 0.2).sin(), -3.5 + (f * 0.4).cos(), -5.0 + (f * 0.8).sin()),
+                log_scale: Vec3::new(
+                    -4.0 + (f * 0.2).sin(),
+                    -3.5 + (f * 0.4).cos(),
+                    -5.0 + (f * 0.8).sin(),
+                ),
                 ..gaussian()
             };
-            let (p, (c, r)) = (project(&g, &cam, &s).unwrap(), footprint_bound(&g, &cam, &s).unwrap());
-            assert!((p.mean - c).length() < 1e-3 && p.radius <= r, "{k}: exact {} bound {r}", p.radius);
+            let (p, (c, r)) = (
+                project(&g, &cam, &s).unwrap(),
+                footprint_bound(&g, &cam, &s).unwrap(),
+            );
+            assert!(
+                (p.mean - c).length() < 1e-3 && p.radius <= r,
+                "{k}: exact {} bound {r}",
+                p.radius
+            );
         }
     }
 
     #[test]
     fn behind_the_camera_is_culled() {
-        let cam = Camera { world_to_camera: Pose::IDENTITY, ..camera() };
-        let g = GaussianParams { mean: Vec3::new(0.0, 0.0, -1.0), ..gaussian() };
+        let cam = Camera {
+            world_to_camera: Pose::IDENTITY,
+            ..camera()
+        };
+        let g = GaussianParams {
+            mean: Vec3::new(0.0, 0.0, -1.0),
+            ..gaussian()
+        };
         assert!(project(&g, &cam, &RenderSettings::default()).is_none());
     }
 }

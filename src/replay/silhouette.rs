@@ -1,9 +1,9 @@
 //! Tracking quality without ground truth: the tracked object's rendered silhouette against its
 //! colour mask in each camera (intersection over union), and a contact sheet of overlays.
 
+use crate::correct::explained;
 use crate::init::ColourMask;
 use crate::render::cpu::CpuRenderer;
-use crate::correct::explained;
 use crate::render::{Camera, GaussianCloud, RenderSettings, Roi, footprint_roi};
 use crate::world::{ShapeId, World};
 use anyhow::{Context, Result};
@@ -28,17 +28,31 @@ fn mean_p5(values: &[f32]) -> (f32, f32) {
     }
     let mut sorted = values.to_vec();
     sorted.sort_by(f32::total_cmp);
-    (values.iter().sum::<f32>() / values.len() as f32, sorted[(values.len() as f32 * 0.05).floor() as usize])
+    (
+        values.iter().sum::<f32>() / values.len() as f32,
+        sorted[(values.len() as f32 * 0.05).floor() as usize],
+    )
 }
 
 pub fn iou_stats(whole: &[f32], visible: &[f32]) -> IouStats {
     let ((mean, p5), (visible_mean, visible_p5)) = (mean_p5(whole), mean_p5(visible));
-    IouStats { mean, p5, visible_mean, visible_p5, frames: whole.len() }
+    IouStats {
+        mean,
+        p5,
+        visible_mean,
+        visible_p5,
+        frames: whole.len(),
+    }
 }
 
 /// The object's silhouette (rendered alpha > 0.5) as a full-frame mask, and the colours it renders
 /// with (see `correct::palette`).
-pub fn silhouette(renderer: &mut CpuRenderer, world: &World, shape: ShapeId, camera: &Camera) -> (Vec<bool>, Vec<Vec3>) {
+pub fn silhouette(
+    renderer: &mut CpuRenderer,
+    world: &World,
+    shape: ShapeId,
+    camera: &Camera,
+) -> (Vec<bool>, Vec<Vec3>) {
     let ids = world.gaussians_of(shape);
     let cloud = GaussianCloud::from_world_where(world, |i| ids.binary_search(&i).is_ok());
     let all: Vec<usize> = (0..cloud.len()).collect();
@@ -73,7 +87,14 @@ pub struct SilhouetteMeter {
 }
 
 impl SilhouetteMeter {
-    pub fn new(shape: ShapeId, object: &str, mask: ColourMask, cameras: usize, render: &RenderSettings, occluder_threshold: f32) -> Self {
+    pub fn new(
+        shape: ShapeId,
+        object: &str,
+        mask: ColourMask,
+        cameras: usize,
+        render: &RenderSettings,
+        occluder_threshold: f32,
+    ) -> Self {
         Self {
             shape,
             object: object.to_string(),
@@ -87,11 +108,27 @@ impl SilhouetteMeter {
 
     /// Measure camera `c`'s image; returns the overlay (green: both, red: mask only, blue:
     /// silhouette only) when `overlay` is asked for.
-    pub fn measure(&mut self, world: &World, c: usize, camera: &Camera, image: &[Vec3], t: f64, overlay: bool) -> Option<Vec<Vec3>> {
+    pub fn measure(
+        &mut self,
+        world: &World,
+        c: usize,
+        camera: &Camera,
+        image: &[Vec3],
+        t: f64,
+        overlay: bool,
+    ) -> Option<Vec<Vec3>> {
         let (sil, palette) = silhouette(&mut self.renderer, world, self.shape, camera);
         let mask = self.mask.segment(image, camera.width, camera.height);
         if self.backgrounds[c].is_none() {
-            self.backgrounds[c] = Some(self.renderer.forward(&GaussianCloud::static_scene(world), camera, Roi::full(camera)).colour);
+            self.backgrounds[c] = Some(
+                self.renderer
+                    .forward(
+                        &GaussianCloud::static_scene(world),
+                        camera,
+                        Roi::full(camera),
+                    )
+                    .colour,
+            );
         }
         let background = self.backgrounds[c].as_deref().unwrap_or_default();
         let threshold = self.occluder_threshold;
@@ -101,13 +138,20 @@ impl SilhouetteMeter {
                 continue;
             }
             let o = image[k];
-            let explained = mask[k] || background.get(k).is_some_and(|b| explained(o, *b, &palette, threshold));
+            let explained = mask[k]
+                || background
+                    .get(k)
+                    .is_some_and(|b| explained(o, *b, &palette, threshold));
             if explained {
                 inter += (sil[k] && mask[k]) as usize;
                 union += 1;
             }
         }
-        let visible = if union == 0 { 1.0 } else { inter as f32 / union as f32 };
+        let visible = if union == 0 {
+            1.0
+        } else {
+            inter as f32 / union as f32
+        };
         self.series[c].push((t, crate::init::mask::iou(&sil, &mask), visible));
         overlay.then(|| {
             image
@@ -143,26 +187,42 @@ pub fn iou_table(m: &super::Metrics) -> String {
     ];
     for (object, cameras) in &m.silhouette_iou {
         for (camera, s) in cameras {
-            rows.push(format!("| {object} | {camera} | {:.3} | {:.3} | {:.3} | {:.3} | {} |", s.mean, s.p5, s.visible_mean, s.visible_p5, s.frames));
+            rows.push(format!(
+                "| {object} | {camera} | {:.3} | {:.3} | {:.3} | {:.3} | {} |",
+                s.mean, s.p5, s.visible_mean, s.visible_p5, s.frames
+            ));
         }
     }
     rows.join("\n")
 }
 
 /// Tile overlays (rows of equal-size images) into one PNG.
-pub fn write_contact_sheet(path: &std::path::Path, rows: &[Vec<(u32, u32, Vec<Vec3>)>]) -> Result<()> {
-    let (w, h) = rows.iter().flatten().fold((0, 0), |(w, h), (iw, ih, _)| (w.max(*iw), h.max(*ih)));
+pub fn write_contact_sheet(
+    path: &std::path::Path,
+    rows: &[Vec<(u32, u32, Vec<Vec3>)>],
+) -> Result<()> {
+    let (w, h) = rows
+        .iter()
+        .flatten()
+        .fold((0, 0), |(w, h), (iw, ih, _)| (w.max(*iw), h.max(*ih)));
     let cols = rows.iter().map(|r| r.len()).max().unwrap_or(0) as u32;
     let mut sheet = image::RgbImage::new((w + 4) * cols.max(1), (h + 4) * rows.len().max(1) as u32);
     for (r, row) in rows.iter().enumerate() {
         for (c, (iw, ih, pixels)) in row.iter().enumerate() {
             for y in 0..*ih {
                 for x in 0..*iw {
-                    let p = (pixels[(y * iw + x) as usize].clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round();
-                    sheet.put_pixel(c as u32 * (w + 4) + x, r as u32 * (h + 4) + y, image::Rgb([p.x as u8, p.y as u8, p.z as u8]));
+                    let p = (pixels[(y * iw + x) as usize].clamp(Vec3::ZERO, Vec3::ONE) * 255.0)
+                        .round();
+                    sheet.put_pixel(
+                        c as u32 * (w + 4) + x,
+                        r as u32 * (h + 4) + y,
+                        image::Rgb([p.x as u8, p.y as u8, p.z as u8]),
+                    );
                 }
             }
         }
     }
-    sheet.save(path).with_context(|| format!("cannot write {}", path.display()))
+    sheet
+        .save(path)
+        .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -28,8 +28,17 @@ pub struct JointStateTracker {
 impl JointStateTracker {
     /// All joints at zero.
     pub fn new(model: &RobotModel) -> Self {
-        let names = model.joints.iter().enumerate().map(|(k, j)| (j.name.clone(), k)).collect();
-        Self { positions: vec![0.0; model.joints.len()], names, reported_unknown: HashSet::new() }
+        let names = model
+            .joints
+            .iter()
+            .enumerate()
+            .map(|(k, j)| (j.name.clone(), k))
+            .collect();
+        Self {
+            positions: vec![0.0; model.joints.len()],
+            names,
+            reported_unknown: HashSet::new(),
+        }
     }
 
     /// Whether `name` is one of the model's joints.
@@ -42,7 +51,10 @@ impl JointStateTracker {
     }
 
     pub fn update(&mut self, names: &[String], positions: &[f64]) -> UpdateReport {
-        let mut report = UpdateReport { length_mismatch: names.len() != positions.len(), ..Default::default() };
+        let mut report = UpdateReport {
+            length_mismatch: names.len() != positions.len(),
+            ..Default::default()
+        };
         for (name, &value) in names.iter().zip(positions) {
             match self.index(name) {
                 None => {
@@ -83,7 +95,11 @@ impl JointTrajectory {
 
     /// Drop samples no longer needed to interpolate at or after `t`.
     pub fn forget_before(&mut self, t: f64) {
-        let keep_from = self.samples.iter().rposition(|(ts, _)| *ts <= t).unwrap_or(0);
+        let keep_from = self
+            .samples
+            .iter()
+            .rposition(|(ts, _)| *ts <= t)
+            .unwrap_or(0);
         self.samples.drain(..keep_from);
     }
 
@@ -96,7 +112,10 @@ impl JointTrajectory {
             let ((t0, a), (t1, b)) = (&self.samples[n - 2], &self.samples[n - 1]);
             let until = t.min(t1 + max_extrapolation);
             let s = (until - t0) / (t1 - t0);
-            out.push(until, a.iter().zip(b).map(|(x, y)| x + s * (y - x)).collect());
+            out.push(
+                until,
+                a.iter().zip(b).map(|(x, y)| x + s * (y - x)).collect(),
+            );
         }
         out
     }
@@ -126,7 +145,13 @@ mod tests {
         let urdf = r#"<robot name="t"><link name="a"/><link name="b"/><link name="c"/>
           <joint name="j1" type="continuous"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/></joint>
           <joint name="j2" type="continuous"><parent link="b"/><child link="c"/><axis xyz="0 0 1"/></joint></robot>"#;
-        RobotModel::parse(urdf, std::path::Path::new("."), &PackagePaths::default(), GeometrySource::Collision).unwrap()
+        RobotModel::parse(
+            urdf,
+            std::path::Path::new("."),
+            &PackagePaths::default(),
+            GeometrySource::Collision,
+        )
+        .unwrap()
     }
 
     #[test]
@@ -142,7 +167,11 @@ mod tests {
         assert!(r.new_unknown.is_empty(), "reported only once");
         let r = t.update(&["j1".into(), "j2".into()], &[f64::NAN, f64::INFINITY]);
         assert_eq!(r.rejected_non_finite.len(), 2);
-        assert_eq!(t.positions, vec![0.5, 0.75], "non-finite values never reach the state");
+        assert_eq!(
+            t.positions,
+            vec![0.5, 0.75],
+            "non-finite values never reach the state"
+        );
         let r = t.update(&["j1".into(), "j2".into()], &[0.1]);
         assert!(r.length_mismatch);
         assert_eq!(t.positions, vec![0.1, 0.75]);

@@ -63,18 +63,32 @@ impl Default for RobotConfig {
 impl RobotConfig {
     pub fn base_pose(&self) -> DAffine3 {
         let [x, y, z, w] = self.base_orientation.map(|v| v as f64);
-        DAffine3::from_rotation_translation(DQuat::from_xyzw(x, y, z, w).normalize(), self.base_position.as_dvec3())
+        DAffine3::from_rotation_translation(
+            DQuat::from_xyzw(x, y, z, w).normalize(),
+            self.base_position.as_dvec3(),
+        )
     }
 
     pub fn validate(&self) -> Result<()> {
         if !(self.particle_radius.is_finite() && self.particle_radius > 0.0) {
-            bail!("robot.particle_radius must be positive, got {}", self.particle_radius);
+            bail!(
+                "robot.particle_radius must be positive, got {}",
+                self.particle_radius
+            );
         }
         if !(self.spacing_per_radius.is_finite() && self.spacing_per_radius > 0.0) {
-            bail!("robot.spacing_per_radius must be positive, got {}", self.spacing_per_radius);
+            bail!(
+                "robot.spacing_per_radius must be positive, got {}",
+                self.spacing_per_radius
+            );
         }
-        if !self.base_position.is_finite() || self.base_orientation.iter().any(|v| !v.is_finite()) || Quat::from_array(self.base_orientation).length() < 1e-6 {
-            bail!("robot.base_position / base_orientation must be finite and the quaternion non-zero");
+        if !self.base_position.is_finite()
+            || self.base_orientation.iter().any(|v| !v.is_finite())
+            || Quat::from_array(self.base_orientation).length() < 1e-6
+        {
+            bail!(
+                "robot.base_position / base_orientation must be finite and the quaternion non-zero"
+            );
         }
         Ok(())
     }
@@ -97,7 +111,12 @@ pub struct RobotInWorld {
 impl RobotInWorld {
     /// Sample every link's geometry into a kinematic shape (body frame = link frame) with one
     /// Gaussian per particle, placed at joint positions `q`.
-    pub fn add(builder: &mut WorldBuilder, model: RobotModel, q: &[f64], config: &RobotConfig) -> Result<Self> {
+    pub fn add(
+        builder: &mut WorldBuilder,
+        model: RobotModel,
+        q: &[f64],
+        config: &RobotConfig,
+    ) -> Result<Self> {
         config.validate()?;
         let base = config.base_pose();
         let poses = model.forward_kinematics(q);
@@ -110,23 +129,46 @@ impl RobotInWorld {
             }
             let mut points = Vec::new();
             for g in &link.geometry {
-                points.extend(sampling::sample(&g.shape, spacing, config.sampling).into_iter().map(|p| g.origin.transform_point3(p)));
+                points.extend(
+                    sampling::sample(&g.shape, spacing, config.sampling)
+                        .into_iter()
+                        .map(|p| g.origin.transform_point3(p)),
+                );
             }
-            let points: Vec<Vec3> = sampling::thin(points, spacing).into_iter().map(|p| p.as_vec3()).collect();
-            let colour = config.colour.or(link.colour).unwrap_or(config.default_colour);
-            let shape = builder.add_kinematic(&format!("robot/{}", link.name), &points, radius, to_pose(&(base * poses[li])), colour);
+            let points: Vec<Vec3> = sampling::thin(points, spacing)
+                .into_iter()
+                .map(|p| p.as_vec3())
+                .collect();
+            let colour = config
+                .colour
+                .or(link.colour)
+                .unwrap_or(config.default_colour);
+            let shape = builder.add_kinematic(
+                &format!("robot/{}", link.name),
+                &points,
+                radius,
+                to_pose(&(base * poses[li])),
+                colour,
+            );
             // Surface samples are `spacing` apart: Gaussians of half that spread close the gaps, so
             // the robot renders solid and occludes what is behind it.
             builder.set_gaussian_look(shape, 0.5 * spacing as f32, 0.98);
             link_shapes.push((li, shape));
         }
-        Ok(Self { model, base, link_shapes })
+        Ok(Self {
+            model,
+            base,
+            link_shapes,
+        })
     }
 
     /// World poses of the linked shapes for joint positions `q`.
     pub fn link_poses(&self, q: &[f64]) -> Vec<(ShapeId, Pose)> {
         let fk = self.model.forward_kinematics(q);
-        self.link_shapes.iter().map(|&(li, s)| (s, to_pose(&(self.base * fk[li])))).collect()
+        self.link_shapes
+            .iter()
+            .map(|&(li, s)| (s, to_pose(&(self.base * fk[li]))))
+            .collect()
     }
 
     /// Set every link's target for the end of the coming tick (used when no per-substep driver is).
@@ -138,8 +180,19 @@ impl RobotInWorld {
 
     /// A driver that moves the links by forward kinematics of `trajectory` interpolated at every
     /// substep of the tick that starts at `tick_start` and lasts `dt`.
-    pub fn driver<'a>(&'a self, trajectory: &'a JointTrajectory, tick_start: f64, dt: f64) -> RobotDriver<'a> {
-        RobotDriver { robot: self, trajectory, tick_start, dt, cache: None }
+    pub fn driver<'a>(
+        &'a self,
+        trajectory: &'a JointTrajectory,
+        tick_start: f64,
+        dt: f64,
+    ) -> RobotDriver<'a> {
+        RobotDriver {
+            robot: self,
+            trajectory,
+            tick_start,
+            dt,
+            cache: None,
+        }
     }
 }
 
@@ -155,9 +208,16 @@ pub struct RobotDriver<'a> {
 impl KinematicDriver for RobotDriver<'_> {
     fn pose_at(&mut self, shape: ShapeId, tick_fraction: f32) -> Option<Pose> {
         if self.cache.as_ref().is_none_or(|(f, _)| *f != tick_fraction) {
-            let q = self.trajectory.at(self.tick_start + self.dt * tick_fraction as f64)?;
+            let q = self
+                .trajectory
+                .at(self.tick_start + self.dt * tick_fraction as f64)?;
             self.cache = Some((tick_fraction, self.robot.link_poses(&q)));
         }
-        self.cache.as_ref()?.1.iter().find(|(s, _)| *s == shape).map(|(_, p)| *p)
+        self.cache
+            .as_ref()?
+            .1
+            .iter()
+            .find(|(s, _)| *s == shape)
+            .map(|(_, p)| *p)
     }
 }

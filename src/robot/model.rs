@@ -19,14 +19,27 @@ pub enum GeometrySource {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Shape {
     /// Full edge lengths.
-    Box { size: DVec3 },
+    Box {
+        size: DVec3,
+    },
     /// Along the local z axis.
-    Cylinder { radius: f64, length: f64 },
+    Cylinder {
+        radius: f64,
+        length: f64,
+    },
     /// Cylinder of `length` along z with hemispherical caps.
-    Capsule { radius: f64, length: f64 },
-    Sphere { radius: f64 },
+    Capsule {
+        radius: f64,
+        length: f64,
+    },
+    Sphere {
+        radius: f64,
+    },
     /// Triangles in the geometry frame, scale applied.
-    Mesh { triangles: Vec<[DVec3; 3]>, source: PathBuf },
+    Mesh {
+        triangles: Vec<[DVec3; 3]>,
+        source: PathBuf,
+    },
 }
 
 /// One geometry element of a link, placed in the link frame.
@@ -89,7 +102,9 @@ pub struct PackagePaths(pub Vec<PathBuf>);
 impl PackagePaths {
     fn resolve(&self, uri: &str, base_dir: &Path) -> Result<PathBuf> {
         if let Some(rest) = uri.strip_prefix("package://") {
-            let (package, relative) = rest.split_once('/').ok_or_else(|| anyhow!("malformed package URI '{uri}'"))?;
+            let (package, relative) = rest
+                .split_once('/')
+                .ok_or_else(|| anyhow!("malformed package URI '{uri}'"))?;
             for dir in &self.0 {
                 let mut candidates = vec![dir.join(package).join(relative)];
                 if dir.file_name().is_some_and(|n| n == package) {
@@ -99,11 +114,18 @@ impl PackagePaths {
                     return Ok(found);
                 }
             }
-            bail!("mesh '{uri}' not found: package '{package}' is not under any package path {:?}", self.0);
+            bail!(
+                "mesh '{uri}' not found: package '{package}' is not under any package path {:?}",
+                self.0
+            );
         }
         let path = uri.strip_prefix("file://").unwrap_or(uri);
         let p = Path::new(path);
-        Ok(if p.is_absolute() { p.to_path_buf() } else { base_dir.join(p) })
+        Ok(if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            base_dir.join(p)
+        })
     }
 }
 
@@ -115,19 +137,32 @@ fn pose_to_affine(p: &urdf_rs::Pose) -> DAffine3 {
 }
 
 fn load_mesh(path: &Path, scale: DVec3) -> Result<Vec<[DVec3; 3]>> {
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default();
     let tris: Vec<[DVec3; 3]> = match ext.as_str() {
         "stl" => {
-            let mut file = std::fs::File::open(path).with_context(|| format!("cannot open mesh {}", path.display()))?;
-            let mesh = stl_io::read_stl(&mut file).with_context(|| format!("cannot read STL mesh {}", path.display()))?;
+            let mut file = std::fs::File::open(path)
+                .with_context(|| format!("cannot open mesh {}", path.display()))?;
+            let mesh = stl_io::read_stl(&mut file)
+                .with_context(|| format!("cannot read STL mesh {}", path.display()))?;
             let v = |i: usize| -> Result<DVec3> {
-                let p = mesh.vertices.get(i).ok_or_else(|| anyhow!("STL {} references a missing vertex", path.display()))?;
+                let p = mesh
+                    .vertices
+                    .get(i)
+                    .ok_or_else(|| anyhow!("STL {} references a missing vertex", path.display()))?;
                 Ok(DVec3::new(p.0[0] as f64, p.0[1] as f64, p.0[2] as f64))
             };
-            mesh.faces.iter().map(|f| Ok([v(f.vertices[0])?, v(f.vertices[1])?, v(f.vertices[2])?])).collect::<Result<_>>()?
+            mesh.faces
+                .iter()
+                .map(|f| Ok([v(f.vertices[0])?, v(f.vertices[1])?, v(f.vertices[2])?]))
+                .collect::<Result<_>>()?
         }
         "obj" => {
-            let (models, _) = tobj::load_obj(path, &tobj::GPU_LOAD_OPTIONS).with_context(|| format!("cannot read OBJ mesh {}", path.display()))?;
+            let (models, _) = tobj::load_obj(path, &tobj::GPU_LOAD_OPTIONS)
+                .with_context(|| format!("cannot read OBJ mesh {}", path.display()))?;
             let mut out = Vec::new();
             for m in models {
                 let p = &m.mesh.positions;
@@ -144,7 +179,10 @@ fn load_mesh(path: &Path, scale: DVec3) -> Result<Vec<[DVec3; 3]>> {
             }
             out
         }
-        _ => bail!("mesh {} has an unsupported format (STL and OBJ are)", path.display()),
+        _ => bail!(
+            "mesh {} has an unsupported format (STL and OBJ are)",
+            path.display()
+        ),
     };
     let tris: Vec<[DVec3; 3]> = tris.into_iter().map(|t| t.map(|p| p * scale)).collect();
     if tris.iter().any(|t| t.iter().any(|p| !p.is_finite())) {
@@ -153,9 +191,17 @@ fn load_mesh(path: &Path, scale: DVec3) -> Result<Vec<[DVec3; 3]>> {
     Ok(tris)
 }
 
-fn convert_geometry(g: &urdf_rs::Geometry, base_dir: &Path, packages: &PackagePaths) -> Result<Shape> {
+fn convert_geometry(
+    g: &urdf_rs::Geometry,
+    base_dir: &Path,
+    packages: &PackagePaths,
+) -> Result<Shape> {
     let positive = |name: &str, v: f64| -> Result<f64> {
-        if v.is_finite() && v > 0.0 { Ok(v) } else { bail!("{name} must be positive and finite, got {v}") }
+        if v.is_finite() && v > 0.0 {
+            Ok(v)
+        } else {
+            bail!("{name} must be positive and finite, got {v}")
+        }
     };
     Ok(match g {
         urdf_rs::Geometry::Box { size } => {
@@ -165,23 +211,41 @@ fn convert_geometry(g: &urdf_rs::Geometry, base_dir: &Path, packages: &PackagePa
             }
             Shape::Box { size: s }
         }
-        urdf_rs::Geometry::Cylinder { radius, length } => Shape::Cylinder { radius: positive("cylinder radius", *radius)?, length: positive("cylinder length", *length)? },
-        urdf_rs::Geometry::Capsule { radius, length } => Shape::Capsule { radius: positive("capsule radius", *radius)?, length: positive("capsule length", *length)? },
-        urdf_rs::Geometry::Sphere { radius } => Shape::Sphere { radius: positive("sphere radius", *radius)? },
+        urdf_rs::Geometry::Cylinder { radius, length } => Shape::Cylinder {
+            radius: positive("cylinder radius", *radius)?,
+            length: positive("cylinder length", *length)?,
+        },
+        urdf_rs::Geometry::Capsule { radius, length } => Shape::Capsule {
+            radius: positive("capsule radius", *radius)?,
+            length: positive("capsule length", *length)?,
+        },
+        urdf_rs::Geometry::Sphere { radius } => Shape::Sphere {
+            radius: positive("sphere radius", *radius)?,
+        },
         urdf_rs::Geometry::Mesh { filename, scale } => {
             let path = packages.resolve(filename, base_dir)?;
             if !path.is_file() {
-                bail!("mesh file {} (from '{filename}') does not exist", path.display());
+                bail!(
+                    "mesh file {} (from '{filename}') does not exist",
+                    path.display()
+                );
             }
             let scale = scale.map(|s| DVec3::from_array(s.0)).unwrap_or(DVec3::ONE);
-            Shape::Mesh { triangles: load_mesh(&path, scale)?, source: path }
+            Shape::Mesh {
+                triangles: load_mesh(&path, scale)?,
+                source: path,
+            }
         }
     })
 }
 
 fn material_colour(m: &urdf_rs::Material, named: &HashMap<String, Vec3>) -> Option<Vec3> {
     match &m.color {
-        Some(c) => Some(Vec3::new(c.rgba.0[0] as f32, c.rgba.0[1] as f32, c.rgba.0[2] as f32)),
+        Some(c) => Some(Vec3::new(
+            c.rgba.0[0] as f32,
+            c.rgba.0[1] as f32,
+            c.rgba.0[2] as f32,
+        )),
         None => named.get(&m.name).copied(),
     }
 }
@@ -189,15 +253,26 @@ fn material_colour(m: &urdf_rs::Material, named: &HashMap<String, Vec3>) -> Opti
 impl RobotModel {
     /// Load a URDF file; meshes resolve relative to its directory or through `packages`.
     pub fn load(path: &Path, packages: &PackagePaths, source: GeometrySource) -> Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read URDF {}", path.display()))?;
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read URDF {}", path.display()))?;
         let base = path.parent().unwrap_or(Path::new("."));
-        Self::parse(&text, base, packages, source).with_context(|| format!("in URDF {}", path.display()))
+        Self::parse(&text, base, packages, source)
+            .with_context(|| format!("in URDF {}", path.display()))
     }
 
     /// Parse URDF text; relative mesh paths resolve against `base_dir`.
-    pub fn parse(text: &str, base_dir: &Path, packages: &PackagePaths, source: GeometrySource) -> Result<Self> {
+    pub fn parse(
+        text: &str,
+        base_dir: &Path,
+        packages: &PackagePaths,
+        source: GeometrySource,
+    ) -> Result<Self> {
         let urdf = urdf_rs::read_from_string(text).map_err(|e| anyhow!("malformed URDF: {e}"))?;
-        let named: HashMap<String, Vec3> = urdf.materials.iter().filter_map(|m| Some((m.name.clone(), material_colour(m, &HashMap::new())?))).collect();
+        let named: HashMap<String, Vec3> = urdf
+            .materials
+            .iter()
+            .filter_map(|m| Some((m.name.clone(), material_colour(m, &HashMap::new())?)))
+            .collect();
         let mut links = Vec::with_capacity(urdf.links.len());
         let mut link_by_name = HashMap::new();
         for l in &urdf.links {
@@ -205,15 +280,34 @@ impl RobotModel {
                 bail!("link '{}' is defined twice", l.name);
             }
             let elements: Vec<(&urdf_rs::Pose, &urdf_rs::Geometry)> = match source {
-                GeometrySource::Collision => l.collision.iter().map(|c| (&c.origin, &c.geometry)).collect(),
-                GeometrySource::Visual => l.visual.iter().map(|v| (&v.origin, &v.geometry)).collect(),
+                GeometrySource::Collision => l
+                    .collision
+                    .iter()
+                    .map(|c| (&c.origin, &c.geometry))
+                    .collect(),
+                GeometrySource::Visual => {
+                    l.visual.iter().map(|v| (&v.origin, &v.geometry)).collect()
+                }
             };
             let geometry = elements
                 .into_iter()
-                .map(|(origin, g)| Ok(LinkGeometry { origin: pose_to_affine(origin), shape: convert_geometry(g, base_dir, packages).with_context(|| format!("link '{}'", l.name))? }))
+                .map(|(origin, g)| {
+                    Ok(LinkGeometry {
+                        origin: pose_to_affine(origin),
+                        shape: convert_geometry(g, base_dir, packages)
+                            .with_context(|| format!("link '{}'", l.name))?,
+                    })
+                })
                 .collect::<Result<Vec<_>>>()?;
-            let colour = l.visual.iter().find_map(|v| v.material.as_ref().and_then(|m| material_colour(m, &named)));
-            links.push(Link { name: l.name.clone(), geometry, colour });
+            let colour = l
+                .visual
+                .iter()
+                .find_map(|v| v.material.as_ref().and_then(|m| material_colour(m, &named)));
+            links.push(Link {
+                name: l.name.clone(),
+                geometry,
+                colour,
+            });
         }
         let mut joints = Vec::with_capacity(urdf.joints.len());
         let mut joint_by_name = HashMap::new();
@@ -224,30 +318,69 @@ impl RobotModel {
                 urdf_rs::JointType::Continuous => JointKind::Continuous,
                 urdf_rs::JointType::Prismatic => JointKind::Prismatic,
                 urdf_rs::JointType::Fixed => JointKind::Fixed,
-                ref other => bail!("joint '{}' has type {other:?}, which pegs does not support (revolute, continuous, prismatic, fixed)", j.name),
+                ref other => bail!(
+                    "joint '{}' has type {other:?}, which pegs does not support (revolute, continuous, prismatic, fixed)",
+                    j.name
+                ),
             };
-            let parent = *link_by_name.get(&j.parent.link).ok_or_else(|| anyhow!("joint '{}' names unknown parent link '{}'", j.name, j.parent.link))?;
-            let child = *link_by_name.get(&j.child.link).ok_or_else(|| anyhow!("joint '{}' names unknown child link '{}'", j.name, j.child.link))?;
+            let parent = *link_by_name.get(&j.parent.link).ok_or_else(|| {
+                anyhow!(
+                    "joint '{}' names unknown parent link '{}'",
+                    j.name,
+                    j.parent.link
+                )
+            })?;
+            let child = *link_by_name.get(&j.child.link).ok_or_else(|| {
+                anyhow!(
+                    "joint '{}' names unknown child link '{}'",
+                    j.name,
+                    j.child.link
+                )
+            })?;
             if parent_of_link[child].is_some() {
                 bail!("link '{}' is the child of two joints", j.child.link);
             }
             parent_of_link[child] = Some(joints.len());
             let axis = DVec3::from_array(j.axis.xyz.0);
-            let axis = if kind == JointKind::Fixed { axis } else { axis.try_normalize().ok_or_else(|| anyhow!("joint '{}' has a zero axis", j.name))? };
+            let axis = if kind == JointKind::Fixed {
+                axis
+            } else {
+                axis.try_normalize()
+                    .ok_or_else(|| anyhow!("joint '{}' has a zero axis", j.name))?
+            };
             if joint_by_name.insert(j.name.clone(), joints.len()).is_some() {
                 bail!("joint '{}' is defined twice", j.name);
             }
-            joints.push(Joint { name: j.name.clone(), kind, parent, child, origin: pose_to_affine(&j.origin), axis, lower: j.limit.lower, upper: j.limit.upper, mimic: None });
+            joints.push(Joint {
+                name: j.name.clone(),
+                kind,
+                parent,
+                child,
+                origin: pose_to_affine(&j.origin),
+                axis,
+                lower: j.limit.lower,
+                upper: j.limit.upper,
+                mimic: None,
+            });
         }
         for (k, j) in urdf.joints.iter().enumerate() {
             if let Some(m) = &j.mimic {
-                let master = *joint_by_name.get(&m.joint).ok_or_else(|| anyhow!("joint '{}' mimics unknown joint '{}'", j.name, m.joint))?;
-                joints[k].mimic = Some((master, m.multiplier.unwrap_or(1.0), m.offset.unwrap_or(0.0)));
+                let master = *joint_by_name.get(&m.joint).ok_or_else(|| {
+                    anyhow!("joint '{}' mimics unknown joint '{}'", j.name, m.joint)
+                })?;
+                joints[k].mimic =
+                    Some((master, m.multiplier.unwrap_or(1.0), m.offset.unwrap_or(0.0)));
             }
         }
-        let roots: Vec<usize> = (0..links.len()).filter(|&l| parent_of_link[l].is_none()).collect();
+        let roots: Vec<usize> = (0..links.len())
+            .filter(|&l| parent_of_link[l].is_none())
+            .collect();
         let [root] = roots[..] else {
-            bail!("a robot needs exactly one root link, found {}: {:?}", roots.len(), roots.iter().map(|&l| &links[l].name).collect::<Vec<_>>());
+            bail!(
+                "a robot needs exactly one root link, found {}: {:?}",
+                roots.len(),
+                roots.iter().map(|&l| &links[l].name).collect::<Vec<_>>()
+            );
         };
         // Breadth-first from the root: each joint after the one that moves its parent link.
         let mut order = Vec::with_capacity(joints.len());
@@ -261,9 +394,20 @@ impl RobotModel {
             }
         }
         if order.len() != joints.len() {
-            bail!("the joints do not form a tree from root link '{}'", links[root].name);
+            bail!(
+                "the joints do not form a tree from root link '{}'",
+                links[root].name
+            );
         }
-        Ok(Self { name: urdf.name, links, joints, root, order, joint_by_name, link_by_name })
+        Ok(Self {
+            name: urdf.name,
+            links,
+            joints,
+            root,
+            order,
+            joint_by_name,
+            link_by_name,
+        })
     }
 
     pub fn joint_index(&self, name: &str) -> Option<usize> {
@@ -276,7 +420,8 @@ impl RobotModel {
 
     /// Joints with their own position (not fixed, not mimicking another).
     pub fn actuated_joints(&self) -> impl Iterator<Item = usize> + '_ {
-        (0..self.joints.len()).filter(|&k| self.joints[k].kind != JointKind::Fixed && self.joints[k].mimic.is_none())
+        (0..self.joints.len())
+            .filter(|&k| self.joints[k].kind != JointKind::Fixed && self.joints[k].mimic.is_none())
     }
 
     /// Poses of every link in the root frame for joint positions `q` (one per joint; fixed joints
@@ -286,11 +431,15 @@ impl RobotModel {
         for &k in &self.order {
             let j = &self.joints[k];
             let value = match j.mimic {
-                Some((master, mult, offset)) => mult * q.get(master).copied().unwrap_or(0.0) + offset,
+                Some((master, mult, offset)) => {
+                    mult * q.get(master).copied().unwrap_or(0.0) + offset
+                }
                 None => q.get(k).copied().unwrap_or(0.0),
             };
             let motion = match j.kind {
-                JointKind::Revolute | JointKind::Continuous => DAffine3::from_mat3(DMat3::from_axis_angle(j.axis, value)),
+                JointKind::Revolute | JointKind::Continuous => {
+                    DAffine3::from_mat3(DMat3::from_axis_angle(j.axis, value))
+                }
                 JointKind::Prismatic => DAffine3::from_translation(j.axis * value),
                 JointKind::Fixed => DAffine3::IDENTITY,
             };
@@ -316,8 +465,18 @@ mod tests {
 
     #[test]
     fn revolute_and_prismatic_chain_moves_as_expected() {
-        let m = RobotModel::parse(TWO_LINK, Path::new("."), &PackagePaths::default(), GeometrySource::Collision).unwrap();
-        assert_eq!(m.links[m.link_index("arm").unwrap()].colour, Some(Vec3::new(1.0, 0.0, 0.0)), "named material resolved");
+        let m = RobotModel::parse(
+            TWO_LINK,
+            Path::new("."),
+            &PackagePaths::default(),
+            GeometrySource::Collision,
+        )
+        .unwrap();
+        assert_eq!(
+            m.links[m.link_index("arm").unwrap()].colour,
+            Some(Vec3::new(1.0, 0.0, 0.0)),
+            "named material resolved"
+        );
         let q = vec![std::f64::consts::FRAC_PI_2, 0.25];
         let poses = m.forward_kinematics(&q);
         let tip = poses[m.link_index("tip").unwrap()].translation;
@@ -327,23 +486,54 @@ mod tests {
 
     #[test]
     fn urdf_rpy_is_fixed_axis_roll_pitch_yaw() {
-        let p = urdf_rs::Pose { xyz: urdf_rs::Vec3([0.0; 3]), rpy: urdf_rs::Vec3([0.3, -0.2, 1.1]) };
+        let p = urdf_rs::Pose {
+            xyz: urdf_rs::Vec3([0.0; 3]),
+            rpy: urdf_rs::Vec3([0.3, -0.2, 1.1]),
+        };
         let a = pose_to_affine(&p);
-        let want = DMat3::from_rotation_z(1.1) * DMat3::from_rotation_y(-0.2) * DMat3::from_rotation_x(0.3);
-        assert!((a.matrix3 - want).abs().to_cols_array().iter().all(|d| *d < 1e-12));
+        let want = DMat3::from_rotation_z(1.1)
+            * DMat3::from_rotation_y(-0.2)
+            * DMat3::from_rotation_x(0.3);
+        assert!(
+            (a.matrix3 - want)
+                .abs()
+                .to_cols_array()
+                .iter()
+                .all(|d| *d < 1e-12)
+        );
     }
 
     #[test]
     fn malformed_or_inconsistent_urdf_is_a_clear_error() {
         let p = PackagePaths::default();
-        let err = |text: &str| format!("{:#}", RobotModel::parse(text, Path::new("."), &p, GeometrySource::Collision).unwrap_err());
+        let err = |text: &str| {
+            format!(
+                "{:#}",
+                RobotModel::parse(text, Path::new("."), &p, GeometrySource::Collision).unwrap_err()
+            )
+        };
         assert!(err("<robot name=\"x\"><link name=\"a\"").contains("malformed URDF"));
-        assert!(err(&TWO_LINK.replace("<parent link=\"arm\"/>", "<parent link=\"nope\"/>")).contains("unknown parent link 'nope'"));
-        assert!(err(&TWO_LINK.replace("type=\"prismatic\"", "type=\"floating\"")).contains("does not support"));
-        let missing = TWO_LINK.replace("<cylinder radius=\"0.02\" length=\"1\"/>", "<mesh filename=\"meshes/none.stl\"/>");
+        assert!(
+            err(&TWO_LINK.replace("<parent link=\"arm\"/>", "<parent link=\"nope\"/>"))
+                .contains("unknown parent link 'nope'")
+        );
+        assert!(
+            err(&TWO_LINK.replace("type=\"prismatic\"", "type=\"floating\""))
+                .contains("does not support")
+        );
+        let missing = TWO_LINK.replace(
+            "<cylinder radius=\"0.02\" length=\"1\"/>",
+            "<mesh filename=\"meshes/none.stl\"/>",
+        );
         let e = err(&missing);
-        assert!(e.contains("none.stl") && e.contains("does not exist"), "{e}");
-        let e = err(&TWO_LINK.replace("<cylinder radius=\"0.02\" length=\"1\"/>", "<mesh filename=\"package://nopkg/m.stl\"/>"));
+        assert!(
+            e.contains("none.stl") && e.contains("does not exist"),
+            "{e}"
+        );
+        let e = err(&TWO_LINK.replace(
+            "<cylinder radius=\"0.02\" length=\"1\"/>",
+            "<mesh filename=\"package://nopkg/m.stl\"/>",
+        ));
         assert!(e.contains("nopkg"), "{e}");
     }
 }

@@ -18,7 +18,10 @@ pub enum Sampling {
 /// Keep one point per cubic cell of edge `spacing` (the first in input order: deterministic).
 pub fn thin(points: Vec<DVec3>, spacing: f64) -> Vec<DVec3> {
     let mut seen = HashSet::new();
-    points.into_iter().filter(|p| seen.insert((*p / spacing).floor().as_ivec3())).collect()
+    points
+        .into_iter()
+        .filter(|p| seen.insert((*p / spacing).floor().as_ivec3()))
+        .collect()
 }
 
 fn steps(length: f64, spacing: f64) -> usize {
@@ -28,7 +31,9 @@ fn steps(length: f64, spacing: f64) -> usize {
 /// Evenly spaced values covering [-half, half] inclusive.
 fn span(half: f64, spacing: f64) -> Vec<f64> {
     let n = steps(2.0 * half, spacing);
-    (0..=n).map(|k| -half + 2.0 * half * k as f64 / n as f64).collect()
+    (0..=n)
+        .map(|k| -half + 2.0 * half * k as f64 / n as f64)
+        .collect()
 }
 
 fn disc(radius: f64, spacing: f64, z: f64, out: &mut Vec<DVec3>) {
@@ -44,9 +49,17 @@ fn disc(radius: f64, spacing: f64, z: f64, out: &mut Vec<DVec3>) {
     }
 }
 
-fn sphere_surface(radius: f64, spacing: f64, centre: DVec3, keep: impl Fn(DVec3) -> bool, out: &mut Vec<DVec3>) {
+fn sphere_surface(
+    radius: f64,
+    spacing: f64,
+    centre: DVec3,
+    keep: impl Fn(DVec3) -> bool,
+    out: &mut Vec<DVec3>,
+) {
     // Fibonacci lattice: near-uniform points, about one per spacing^2 of area.
-    let n = ((4.0 * std::f64::consts::PI * radius * radius) / (spacing * spacing)).ceil().max(1.0) as usize;
+    let n = ((4.0 * std::f64::consts::PI * radius * radius) / (spacing * spacing))
+        .ceil()
+        .max(1.0) as usize;
     let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
     for k in 0..n {
         let z = 1.0 - 2.0 * (k as f64 + 0.5) / n as f64;
@@ -60,7 +73,10 @@ fn sphere_surface(radius: f64, spacing: f64, centre: DVec3, keep: impl Fn(DVec3)
 }
 
 fn triangle_surface(t: &[DVec3; 3], spacing: f64, out: &mut Vec<DVec3>) {
-    let longest = (t[1] - t[0]).length().max((t[2] - t[1]).length()).max((t[0] - t[2]).length());
+    let longest = (t[1] - t[0])
+        .length()
+        .max((t[2] - t[1]).length())
+        .max((t[0] - t[2]).length());
     let n = steps(longest, spacing * 0.5);
     for i in 0..=n {
         for j in 0..=(n - i) {
@@ -117,12 +133,33 @@ pub fn sample(shape: &Shape, spacing: f64, mode: Sampling) -> Vec<DVec3> {
         }
         (Shape::Capsule { radius, length }, mode) => {
             let half = length / 2.0;
-            let cylinder = Shape::Cylinder { radius: *radius, length: *length };
-            pts.extend(sample(&cylinder, spacing, mode).into_iter().filter(|p| p.z.abs() < half - 1e-9 || mode == Sampling::Volume));
-            sphere_surface(*radius, spacing, DVec3::new(0.0, 0.0, half), |d| d.z >= 0.0, &mut pts);
-            sphere_surface(*radius, spacing, DVec3::new(0.0, 0.0, -half), |d| d.z <= 0.0, &mut pts);
+            let cylinder = Shape::Cylinder {
+                radius: *radius,
+                length: *length,
+            };
+            pts.extend(
+                sample(&cylinder, spacing, mode)
+                    .into_iter()
+                    .filter(|p| p.z.abs() < half - 1e-9 || mode == Sampling::Volume),
+            );
+            sphere_surface(
+                *radius,
+                spacing,
+                DVec3::new(0.0, 0.0, half),
+                |d| d.z >= 0.0,
+                &mut pts,
+            );
+            sphere_surface(
+                *radius,
+                spacing,
+                DVec3::new(0.0, 0.0, -half),
+                |d| d.z <= 0.0,
+                &mut pts,
+            );
         }
-        (Shape::Sphere { radius }, Sampling::Surface) => sphere_surface(*radius, spacing, DVec3::ZERO, |_| true, &mut pts),
+        (Shape::Sphere { radius }, Sampling::Surface) => {
+            sphere_surface(*radius, spacing, DVec3::ZERO, |_| true, &mut pts)
+        }
         (Shape::Sphere { radius }, Sampling::Volume) => {
             for x in span(*radius, spacing) {
                 for y in span(*radius, spacing) {
@@ -155,7 +192,11 @@ pub fn distance_to_surface(shape: &Shape, p: DVec3) -> f64 {
             (outside + inside).abs()
         }
         Shape::Cylinder { radius, length } => {
-            let d = DVec3::new(p.truncate().length() - radius, p.z.abs() - length / 2.0, 0.0);
+            let d = DVec3::new(
+                p.truncate().length() - radius,
+                p.z.abs() - length / 2.0,
+                0.0,
+            );
             let outside = DVec3::new(d.x.max(0.0), d.y.max(0.0), 0.0).length();
             (outside + d.x.max(d.y).min(0.0)).abs()
         }
@@ -164,7 +205,10 @@ pub fn distance_to_surface(shape: &Shape, p: DVec3) -> f64 {
             ((p - DVec3::new(0.0, 0.0, z)).length() - radius).abs()
         }
         Shape::Sphere { radius } => (p.length() - radius).abs(),
-        Shape::Mesh { triangles, .. } => triangles.iter().map(|t| point_triangle_distance(p, t)).fold(f64::INFINITY, f64::min),
+        Shape::Mesh { triangles, .. } => triangles
+            .iter()
+            .map(|t| point_triangle_distance(p, t))
+            .fold(f64::INFINITY, f64::min),
     }
 }
 
@@ -202,7 +246,6 @@ fn point_triangle_distance(p: DVec3, t: &[DVec3; 3]) -> f64 {
     (p - (a + ab * (vb * denom) + ac * (vc * denom))).length()
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -210,9 +253,17 @@ mod tests {
     #[test]
     fn surface_samples_lie_on_the_surface_and_cover_it() {
         let shapes = [
-            Shape::Box { size: DVec3::new(0.2, 0.1, 0.05) },
-            Shape::Cylinder { radius: 0.05, length: 0.3 },
-            Shape::Capsule { radius: 0.04, length: 0.2 },
+            Shape::Box {
+                size: DVec3::new(0.2, 0.1, 0.05),
+            },
+            Shape::Cylinder {
+                radius: 0.05,
+                length: 0.3,
+            },
+            Shape::Capsule {
+                radius: 0.04,
+                length: 0.2,
+            },
             Shape::Sphere { radius: 0.07 },
         ];
         let spacing = 0.01;
@@ -220,12 +271,25 @@ mod tests {
             let pts = sample(s, spacing, Sampling::Surface);
             assert!(pts.len() > 50, "{s:?}: {} points", pts.len());
             for p in &pts {
-                assert!(distance_to_surface(s, *p) < 1e-9, "{s:?}: {p} off the surface");
+                assert!(
+                    distance_to_surface(s, *p) < 1e-9,
+                    "{s:?}: {p} off the surface"
+                );
             }
             // Coverage: probe points on the surface have a sample within 1.5 spacings.
             let probe = sample(s, spacing / 3.0, Sampling::Surface);
-            let worst = probe.iter().map(|q| pts.iter().map(|p| (*p - *q).length()).fold(f64::INFINITY, f64::min)).fold(0.0, f64::max);
-            assert!(worst < 1.5 * spacing, "{s:?}: a surface point is {worst} m from any sample");
+            let worst = probe
+                .iter()
+                .map(|q| {
+                    pts.iter()
+                        .map(|p| (*p - *q).length())
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .fold(0.0, f64::max);
+            assert!(
+                worst < 1.5 * spacing,
+                "{s:?}: a surface point is {worst} m from any sample"
+            );
         }
     }
 
@@ -233,18 +297,42 @@ mod tests {
     fn mesh_samples_cover_its_triangles() {
         // A unit-square of two triangles, 10 cm.
         let t = vec![
-            [DVec3::ZERO, DVec3::new(0.1, 0.0, 0.0), DVec3::new(0.1, 0.1, 0.0)],
-            [DVec3::ZERO, DVec3::new(0.1, 0.1, 0.0), DVec3::new(0.0, 0.1, 0.0)],
+            [
+                DVec3::ZERO,
+                DVec3::new(0.1, 0.0, 0.0),
+                DVec3::new(0.1, 0.1, 0.0),
+            ],
+            [
+                DVec3::ZERO,
+                DVec3::new(0.1, 0.1, 0.0),
+                DVec3::new(0.0, 0.1, 0.0),
+            ],
         ];
-        let mesh = Shape::Mesh { triangles: t, source: "square".into() };
+        let mesh = Shape::Mesh {
+            triangles: t,
+            source: "square".into(),
+        };
         let pts = sample(&mesh, 0.01, Sampling::Surface);
-        assert!(pts.iter().all(|p| p.z.abs() < 1e-12 && distance_to_surface(&mesh, *p) < 1e-12));
-        assert!((80..=200).contains(&pts.len()), "{} points for 100 cm^2 at 1 cm", pts.len());
+        assert!(
+            pts.iter()
+                .all(|p| p.z.abs() < 1e-12 && distance_to_surface(&mesh, *p) < 1e-12)
+        );
+        assert!(
+            (80..=200).contains(&pts.len()),
+            "{} points for 100 cm^2 at 1 cm",
+            pts.len()
+        );
     }
 
     #[test]
     fn volume_lattice_fills_primitives() {
-        let pts = sample(&Shape::Box { size: DVec3::splat(0.1) }, 0.01, Sampling::Volume);
+        let pts = sample(
+            &Shape::Box {
+                size: DVec3::splat(0.1),
+            },
+            0.01,
+            Sampling::Volume,
+        );
         assert!(pts.iter().any(|p| p.length() < 0.006), "centre is filled");
         assert!(pts.iter().all(|p| p.abs().max_element() <= 0.05 + 1e-12));
     }

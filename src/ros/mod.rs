@@ -60,13 +60,20 @@ impl NodeConfig {
         if self.cameras.is_empty() {
             bail!("node.cameras must name at least one camera");
         }
-        for (name, t) in [("image_topic", &self.image_topic), ("camera_info_topic", &self.camera_info_topic), ("optical_frame", &self.optical_frame)] {
+        for (name, t) in [
+            ("image_topic", &self.image_topic),
+            ("camera_info_topic", &self.camera_info_topic),
+            ("optical_frame", &self.optical_frame),
+        ] {
             if !t.contains("{camera}") {
                 bail!("node.{name} must contain {{camera}}, got '{t}'");
             }
         }
         if !(self.diagnostics_period.is_finite() && self.diagnostics_period > 0.0) {
-            bail!("node.diagnostics_period must be > 0, got {}", self.diagnostics_period);
+            bail!(
+                "node.diagnostics_period must be > 0, got {}",
+                self.diagnostics_period
+            );
         }
         Ok(())
     }

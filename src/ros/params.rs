@@ -27,7 +27,13 @@ pub fn flatten(config: &Config) -> Result<Vec<(String, ParameterValue)>> {
 }
 
 fn walk(value: &Value, path: String, out: &mut Vec<(String, ParameterValue)>) {
-    let join = |key: &str| if path.is_empty() { key.to_string() } else { format!("{path}.{key}") };
+    let join = |key: &str| {
+        if path.is_empty() {
+            key.to_string()
+        } else {
+            format!("{path}.{key}")
+        }
+    };
     match value {
         Value::Object(map) => map.iter().for_each(|(k, v)| walk(v, join(k), out)),
         other => {
@@ -48,7 +54,12 @@ fn to_parameter(value: &Value) -> Option<ParameterValue> {
             if items.iter().all(Value::is_number) {
                 ParameterValue::DoubleArray(items.iter().filter_map(Value::as_f64).collect())
             } else if items.iter().all(Value::is_string) {
-                ParameterValue::StringArray(items.iter().filter_map(|s| s.as_str().map(String::from)).collect())
+                ParameterValue::StringArray(
+                    items
+                        .iter()
+                        .filter_map(|s| s.as_str().map(String::from))
+                        .collect(),
+                )
             } else if items.iter().all(Value::is_boolean) {
                 ParameterValue::BooleanArray(items.iter().filter_map(Value::as_bool).collect())
             } else {
@@ -79,15 +90,23 @@ pub fn with_parameter(config: &Config, name: &str, value: Value) -> Result<Confi
     let mut tree = serde_json::to_value(config)?;
     let mut at = &mut tree;
     for key in name.split('.') {
-        at = at.as_object_mut().and_then(|m| m.get_mut(key)).with_context(|| format!("no parameter '{name}'"))?;
+        at = at
+            .as_object_mut()
+            .and_then(|m| m.get_mut(key))
+            .with_context(|| format!("no parameter '{name}'"))?;
     }
     // Integers are accepted where the configuration holds a real number.
     *at = match (&*at, value) {
-        (Value::Number(old), Value::Number(new)) if old.is_f64() => Value::from(new.as_f64().unwrap_or(f64::NAN)),
+        (Value::Number(old), Value::Number(new)) if old.is_f64() => {
+            Value::from(new.as_f64().unwrap_or(f64::NAN))
+        }
         (_, v) => v,
     };
-    let config: Config = serde_json::from_value(tree).with_context(|| format!("parameter '{name}' has the wrong type"))?;
-    config.validated().with_context(|| format!("parameter '{name}'"))
+    let config: Config = serde_json::from_value(tree)
+        .with_context(|| format!("parameter '{name}' has the wrong type"))?;
+    config
+        .validated()
+        .with_context(|| format!("parameter '{name}'"))
 }
 
 /// What `--ros-args` asked for.
@@ -111,10 +130,14 @@ pub fn parse_ros_args(args: &[String]) -> Result<LaunchArgs> {
             "--" => break,
             "-p" | "--param" => {
                 let item = it.next().context("-p needs name:=value")?;
-                let (name, value) = item.split_once(":=").with_context(|| format!("-p {item}: expected name:=value"))?;
+                let (name, value) = item
+                    .split_once(":=")
+                    .with_context(|| format!("-p {item}: expected name:=value"))?;
                 out.overrides.push((name.to_string(), value.to_string()));
             }
-            "--params-file" => out.params_files.push(it.next().context("--params-file needs a file")?.into()),
+            "--params-file" => out
+                .params_files
+                .push(it.next().context("--params-file needs a file")?.into()),
             "-r" | "--remap" => {
                 let item = it.next().context("-r needs from:=to")?;
                 match item.split_once(":=") {
@@ -128,7 +151,9 @@ pub fn parse_ros_args(args: &[String]) -> Result<LaunchArgs> {
                 it.next();
             }
             "--ros-args" => {}
-            other => bail!("unsupported ROS argument '{other}' (supported: -p, --params-file, -r __node:=, -r __ns:=, --log-level)"),
+            other => bail!(
+                "unsupported ROS argument '{other}' (supported: -p, --params-file, -r __node:=, -r __ns:=, --log-level)"
+            ),
         }
     }
     Ok(out)
@@ -139,18 +164,23 @@ pub fn parse_ros_args(args: &[String]) -> Result<LaunchArgs> {
 pub fn launch_config(base: Config, args: &LaunchArgs) -> Result<Config> {
     let mut config = base;
     for file in &args.params_files {
-        let text = std::fs::read_to_string(file).with_context(|| format!("cannot read {}", file.display()))?;
-        let yaml: serde_yaml_ng::Value = serde_yaml_ng::from_str(&text).with_context(|| format!("{} is not valid YAML", file.display()))?;
+        let text = std::fs::read_to_string(file)
+            .with_context(|| format!("cannot read {}", file.display()))?;
+        let yaml: serde_yaml_ng::Value = serde_yaml_ng::from_str(&text)
+            .with_context(|| format!("{} is not valid YAML", file.display()))?;
         let params = crate::config::ros_parameters(&yaml).unwrap_or(&yaml);
         let mut leaves = Vec::new();
         leaves_of(&serde_json::to_value(params)?, String::new(), &mut leaves);
         for (name, value) in leaves {
-            config = with_parameter(&config, &name, value).with_context(|| format!("in {}", file.display()))?;
+            config = with_parameter(&config, &name, value)
+                .with_context(|| format!("in {}", file.display()))?;
         }
     }
     for (name, text) in &args.overrides {
-        let value: serde_yaml_ng::Value = serde_yaml_ng::from_str(text).with_context(|| format!("-p {name}:={text}: not a value"))?;
-        config = with_parameter(&config, name, serde_json::to_value(value)?).with_context(|| format!("-p {name}:={text}"))?;
+        let value: serde_yaml_ng::Value = serde_yaml_ng::from_str(text)
+            .with_context(|| format!("-p {name}:={text}: not a value"))?;
+        config = with_parameter(&config, name, serde_json::to_value(value)?)
+            .with_context(|| format!("-p {name}:={text}"))?;
     }
     Ok(config)
 }
@@ -160,7 +190,15 @@ fn leaves_of(value: &Value, path: String, out: &mut Vec<(String, Value)>) {
     match value {
         Value::Object(map) => {
             for (k, v) in map {
-                leaves_of(v, if path.is_empty() { k.clone() } else { format!("{path}.{k}") }, out);
+                leaves_of(
+                    v,
+                    if path.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{path}.{k}")
+                    },
+                    out,
+                );
             }
         }
         other => out.push((path, other.clone())),
@@ -176,8 +214,17 @@ mod tests {
         let config = Config::default();
         let params = flatten(&config).unwrap();
         let names: Vec<&str> = params.iter().map(|(n, _)| n.as_str()).collect();
-        for expected in ["physics.dt", "physics.ground.height", "correct.gain", "physics.gravity", "node.cameras"] {
-            assert!(names.contains(&expected), "{expected} missing from {names:?}");
+        for expected in [
+            "physics.dt",
+            "physics.ground.height",
+            "correct.gain",
+            "physics.gravity",
+            "node.cameras",
+        ] {
+            assert!(
+                names.contains(&expected),
+                "{expected} missing from {names:?}"
+            );
         }
         for (name, value) in &params {
             let back = with_parameter(&config, name, from_parameter(value).unwrap()).unwrap();
@@ -194,9 +241,27 @@ mod tests {
         let c = with_parameter(&config, "physics.substeps", Value::from(7)).unwrap();
         assert_eq!(c.physics.substeps, 7);
         // An integer where a real number is expected is fine.
-        assert_eq!(with_parameter(&config, "correct.gain", Value::from(2)).unwrap().correct.gain, 2.0);
-        assert!(format!("{:#}", with_parameter(&config, "physics.dt", Value::from(-1.0)).unwrap_err()).contains("physics.dt"));
-        assert!(format!("{:#}", with_parameter(&config, "physics.nonsense", Value::from(1.0)).unwrap_err()).contains("no parameter"));
+        assert_eq!(
+            with_parameter(&config, "correct.gain", Value::from(2))
+                .unwrap()
+                .correct
+                .gain,
+            2.0
+        );
+        assert!(
+            format!(
+                "{:#}",
+                with_parameter(&config, "physics.dt", Value::from(-1.0)).unwrap_err()
+            )
+            .contains("physics.dt")
+        );
+        assert!(
+            format!(
+                "{:#}",
+                with_parameter(&config, "physics.nonsense", Value::from(1.0)).unwrap_err()
+            )
+            .contains("no parameter")
+        );
         assert!(with_parameter(&config, "physics.substeps", Value::from("many")).is_err());
     }
 
@@ -205,8 +270,24 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("pegs-params-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let file = dir.join("p.yaml");
-        std::fs::write(&file, "pegs:\n  ros__parameters:\n    correct:\n      gain: 0.7\n      damping: 0.02\n").unwrap();
-        let args: Vec<String> = ["--params-file", file.to_str().unwrap(), "-p", "correct.gain:=0.9", "-p", "node.cameras:=[a, b]", "-r", "__node:=tracker"].iter().map(|s| s.to_string()).collect();
+        std::fs::write(
+            &file,
+            "pegs:\n  ros__parameters:\n    correct:\n      gain: 0.7\n      damping: 0.02\n",
+        )
+        .unwrap();
+        let args: Vec<String> = [
+            "--params-file",
+            file.to_str().unwrap(),
+            "-p",
+            "correct.gain:=0.9",
+            "-p",
+            "node.cameras:=[a, b]",
+            "-r",
+            "__node:=tracker",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
         let parsed = parse_ros_args(&args).unwrap();
         assert_eq!(parsed.node_name.as_deref(), Some("tracker"));
         let c = launch_config(Config::default(), &parsed).unwrap();
@@ -214,7 +295,13 @@ mod tests {
         assert_eq!(c.correct.damping, 0.02);
         assert_eq!(c.node.cameras, vec!["a".to_string(), "b".to_string()]);
         assert!(parse_ros_args(&["-p".into(), "gain".into()]).is_err());
-        assert!(launch_config(Config::default(), &parse_ros_args(&["-p".into(), "physics.dt:=0".into()]).unwrap()).is_err());
+        assert!(
+            launch_config(
+                Config::default(),
+                &parse_ros_args(&["-p".into(), "physics.dt:=0".into()]).unwrap()
+            )
+            .is_err()
+        );
     }
 
     #[test]

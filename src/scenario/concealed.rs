@@ -18,7 +18,15 @@ use crate::tracker::Tracker;
 use anyhow::{Context, Result};
 use glam::{DVec3, Quat, Vec2, Vec3};
 
-pub const NAMES: [&str; 7] = ["concealed_control", "concealed_drag", "concealed_tilt", "concealed_tether", "concealed_patch", "concealed_weight", "concealed_heavy"];
+pub const NAMES: [&str; 7] = [
+    "concealed_control",
+    "concealed_drag",
+    "concealed_tilt",
+    "concealed_tether",
+    "concealed_patch",
+    "concealed_weight",
+    "concealed_heavy",
+];
 
 /// Recording length, s.
 pub const SECONDS: f64 = 8.5;
@@ -26,12 +34,22 @@ pub const SECONDS: f64 = 8.5;
 pub fn description(name: &str) -> &'static str {
     match name {
         "concealed_control" => "concealed effects, control: the struck box glides as modelled",
-        "concealed_drag" => "concealed: viscous drag 1.0 N s/m slows the box (struck at three speeds)",
+        "concealed_drag" => {
+            "concealed: viscous drag 1.0 N s/m slows the box (struck at three speeds)"
+        }
         "concealed_tilt" => "concealed: the table is tilted 1.0 deg downhill along +x",
-        "concealed_tether" => "concealed: an invisible elastic cord (0.8 N/m) ties the box to a point 10 cm behind it",
-        "concealed_patch" => "concealed: an invisible patch of friction 0.15 on the slippery table (0.03)",
-        "concealed_weight" => "concealed: a hidden weight moves the box's centre of mass 1.5 cm along its length",
-        "concealed_heavy" => "concealed: the box weighs 3 times what it looks (a lead core); it shows only when the box strikes two others",
+        "concealed_tether" => {
+            "concealed: an invisible elastic cord (0.8 N/m) ties the box to a point 10 cm behind it"
+        }
+        "concealed_patch" => {
+            "concealed: an invisible patch of friction 0.15 on the slippery table (0.03)"
+        }
+        "concealed_weight" => {
+            "concealed: a hidden weight moves the box's centre of mass 1.5 cm along its length"
+        }
+        "concealed_heavy" => {
+            "concealed: the box weighs 3 times what it looks (a lead core); it shows only when the box strikes two others"
+        }
         _ => "",
     }
 }
@@ -55,7 +73,10 @@ fn start(name: &str) -> Pose {
 /// from `box2`.
 fn others(name: &str) -> Vec<(&'static str, Vec3)> {
     match name {
-        "concealed_heavy" => vec![("box2", Vec3::new(0.45, 0.06, BOX_Z)), ("box3", Vec3::new(0.633, -0.142, BOX_Z))],
+        "concealed_heavy" => vec![
+            ("box2", Vec3::new(0.45, 0.06, BOX_Z)),
+            ("box3", Vec3::new(0.633, -0.142, BOX_Z)),
+        ],
         _ => Vec::new(),
     }
 }
@@ -79,17 +100,28 @@ pub const BOX_MASS: f32 = 0.36;
 pub const HEAVY: f32 = 3.0;
 
 pub fn truth(name: &str) -> HiddenTruth {
-    let none = HiddenTruth { effects: Vec::new(), effect: None, parameter: None, region: None };
+    let none = HiddenTruth {
+        effects: Vec::new(),
+        effect: None,
+        parameter: None,
+        region: None,
+    };
     let box_ = || "box".to_string();
     match name {
         "concealed_drag" => HiddenTruth {
-            effects: vec![Effect::ViscousDrag { object: Some(box_()), coefficient: 1.0 }],
+            effects: vec![Effect::ViscousDrag {
+                object: Some(box_()),
+                coefficient: 1.0,
+            }],
             effect: Some("viscous_drag"),
             parameter: Some(("coefficient", 1.0)),
             region: None,
         },
         "concealed_tilt" => HiddenTruth {
-            effects: vec![Effect::TableTilt { angle: TILT_ANGLE, azimuth: 0.0 }],
+            effects: vec![Effect::TableTilt {
+                angle: TILT_ANGLE,
+                azimuth: 0.0,
+            }],
             effect: Some("constant_force"),
             // The in-plane part of gravity on the box: m g sin(angle).
             parameter: Some(("magnitude", BOX_MASS * 9.81 * TILT_ANGLE.sin())),
@@ -116,20 +148,31 @@ pub fn truth(name: &str) -> HiddenTruth {
             // back off the patch.
             let (center, half_size) = (Vec2::new(0.5, 0.15), Vec2::new(0.15, 0.08));
             HiddenTruth {
-                effects: vec![Effect::FrictionPatch { center, half_size, static_friction: 0.15, kinetic_friction: 0.15 }],
+                effects: vec![Effect::FrictionPatch {
+                    center,
+                    half_size,
+                    static_friction: 0.15,
+                    kinetic_friction: 0.15,
+                }],
                 effect: Some("friction_patch"),
                 parameter: Some(("friction", 0.15)),
                 region: Some((center, half_size)),
             }
         }
         "concealed_heavy" => HiddenTruth {
-            effects: vec![Effect::MassScale { object: box_(), factor: HEAVY }],
+            effects: vec![Effect::MassScale {
+                object: box_(),
+                factor: HEAVY,
+            }],
             effect: Some("mass_error"),
             parameter: Some(("factor", HEAVY)),
             region: None,
         },
         "concealed_weight" => HiddenTruth {
-            effects: vec![Effect::CenterOfMassOffset { object: box_(), offset: Vec3::new(0.015, 0.0, 0.0) }],
+            effects: vec![Effect::CenterOfMassOffset {
+                object: box_(),
+                offset: Vec3::new(0.015, 0.0, 0.0),
+            }],
             effect: Some("center_of_mass_offset"),
             parameter: Some(("offset", 0.015)),
             region: None,
@@ -166,9 +209,27 @@ fn strikes(name: &str) -> Vec<Strike> {
     if name == "concealed_heavy" {
         // Into box2 (fitted), sideways off it, into box3 (held out).
         return vec![
-            Strike { t: 0.9, direction: DVec3::Y, speed: 0.35, distance: 0.1, aim: None },
-            Strike { t: 3.7, direction: DVec3::X, speed: 0.3, distance: 0.12, aim: None },
-            Strike { t: 6.5, direction: DVec3::NEG_Y, speed: 0.3, distance: 0.1, aim: Some(("box3", 0.17)) },
+            Strike {
+                t: 0.9,
+                direction: DVec3::Y,
+                speed: 0.35,
+                distance: 0.1,
+                aim: None,
+            },
+            Strike {
+                t: 3.7,
+                direction: DVec3::X,
+                speed: 0.3,
+                distance: 0.12,
+                aim: None,
+            },
+            Strike {
+                t: 6.5,
+                direction: DVec3::NEG_Y,
+                speed: 0.3,
+                distance: 0.1,
+                aim: Some(("box3", 0.17)),
+            },
         ];
     }
     let (s1, s2, s3) = match name {
@@ -180,9 +241,27 @@ fn strikes(name: &str) -> Vec<Strike> {
     // The third strike falls in the held-out part of a diagnosis (the last 30 %), so what was
     // fitted on the first two is judged on a motion it has not seen.
     vec![
-        Strike { t: 0.9, direction: DVec3::Y, speed: s1, distance: 0.1, aim: None },
-        Strike { t: 3.7, direction: DVec3::NEG_Y, speed: s2, distance: 0.09, aim: None },
-        Strike { t: 6.5, direction: DVec3::Y, speed: s3, distance: 0.09, aim: None },
+        Strike {
+            t: 0.9,
+            direction: DVec3::Y,
+            speed: s1,
+            distance: 0.1,
+            aim: None,
+        },
+        Strike {
+            t: 3.7,
+            direction: DVec3::NEG_Y,
+            speed: s2,
+            distance: 0.09,
+            aim: None,
+        },
+        Strike {
+            t: 6.5,
+            direction: DVec3::Y,
+            speed: s3,
+            distance: 0.09,
+            aim: None,
+        },
     ]
 }
 
@@ -208,21 +287,41 @@ fn strike_waypoints(s: &Strike, box_centre: DVec3, reach: f64) -> Vec<(f64, DVec
     ]
 }
 
-fn assemble(name: &str, offset: Pose, waypoints: &[(f64, DVec3)], others: &[(&str, Vec3)]) -> Result<Scene> {
+fn assemble(
+    name: &str,
+    offset: Pose,
+    waypoints: &[(f64, DVec3)],
+    others: &[(&str, Vec3)],
+) -> Result<Scene> {
     let mut b = WorldBuilder::new();
     add_table(&mut b);
     add_box(&mut b, start(name), offset);
-    let colours = [(Vec3::new(0.85, 0.15, 0.15), Vec3::splat(0.9)), (Vec3::new(0.2, 0.7, 0.25), Vec3::new(0.9, 0.3, 0.8))];
+    let colours = [
+        (Vec3::new(0.85, 0.15, 0.15), Vec3::splat(0.9)),
+        (Vec3::new(0.2, 0.7, 0.25), Vec3::new(0.9, 0.3, 0.8)),
+    ];
     for (&(other, centre), (body, end)) in others.iter().zip(colours) {
-        add_painted_box(&mut b, other, Pose::from_translation(centre), offset, body, end);
+        add_painted_box(
+            &mut b,
+            other,
+            Pose::from_translation(centre),
+            offset,
+            body,
+            end,
+        );
     }
     let model = builtin::panda_pusher()?;
     let mut points = waypoints.to_vec();
     points.push((SECONDS + 0.1, points.last().map_or(PARK, |w| w.1)));
-    let trajectory = pusher_trajectory(&model, &points, 30.0).with_context(|| format!("scenario {name}: rod path"))?;
+    let trajectory = pusher_trajectory(&model, &points, 30.0)
+        .with_context(|| format!("scenario {name}: rod path"))?;
     let q0 = trajectory.at(0.0).context("empty trajectory")?;
     let robot = RobotInWorld::add(&mut b, model, &q0, &RobotConfig::default())?;
-    Ok(Scene { world: b.build(), scripts: Vec::new(), robot: Some((robot, trajectory)) })
+    Ok(Scene {
+        world: b.build(),
+        scripts: Vec::new(),
+        robot: Some((robot, trajectory)),
+    })
 }
 
 /// Scenario `name`'s world with the box placed `offset` away from its true start.
@@ -232,14 +331,25 @@ pub fn build(name: &str, offset: Pose) -> Result<Scene> {
     let truth_config = super::truth_config(name);
     for strike in strikes(name) {
         // Run the true world up to the strike to see where the box rests.
-        let mut world = Tracker::new(assemble(name, Pose::IDENTITY, &waypoints, &others)?, &truth_config, false)?;
+        let mut world = Tracker::new(
+            assemble(name, Pose::IDENTITY, &waypoints, &others)?,
+            &truth_config,
+            false,
+        )?;
         let box_id = world.scene.world.shape_id("box").context("no box")?;
         while world.scene.world.time < strike.t - 0.75 - 1e-6 {
             world.tick(&[])?;
         }
         let w = &world.scene.world;
         let centre = w.shape_centroid(box_id).as_dvec3();
-        let reach = w.shapes.range(box_id).map(|i| (centre - w.particles.position[i].as_dvec3()).dot(strike.direction) + w.particles.radius[i] as f64).fold(0.0, f64::max);
+        let reach = w
+            .shapes
+            .range(box_id)
+            .map(|i| {
+                (centre - w.particles.position[i].as_dvec3()).dot(strike.direction)
+                    + w.particles.radius[i] as f64
+            })
+            .fold(0.0, f64::max);
         waypoints.extend(strike_waypoints(&strike, centre, reach));
         if let Some((target, gap)) = strike.aim {
             let ahead = centre + strike.direction * gap;
@@ -270,7 +380,10 @@ mod tests {
     /// Centres of box, box2, box3 at each of `times` in `scene` run with `config`.
     fn centres_at(scene: Scene, config: &Config, times: &[f64]) -> Vec<[Vec3; 3]> {
         let mut world = Tracker::new(scene, config, false).unwrap();
-        let ids: Vec<_> = ["box", "box2", "box3"].iter().map(|n| world.scene.world.shape_id(n).unwrap()).collect();
+        let ids: Vec<_> = ["box", "box2", "box3"]
+            .iter()
+            .map(|n| world.scene.world.shape_id(n).unwrap())
+            .collect();
         let mut out = Vec::new();
         for &t in times {
             while world.scene.world.time < t - 1e-6 {
@@ -289,16 +402,42 @@ mod tests {
     fn the_heavy_box_strikes_one_box_in_each_part_and_its_mass_shows_in_how_far_they_slide() {
         let name = "concealed_heavy";
         let times = [0.0, 3.6, 6.4, SECONDS];
-        let truth = centres_at(build(name, Pose::IDENTITY).unwrap(), &super::super::truth_config(name), &times);
-        let model = centres_at(build(name, Pose::IDENTITY).unwrap(), &model_config(), &times[..2]);
+        let truth = centres_at(
+            build(name, Pose::IDENTITY).unwrap(),
+            &super::super::truth_config(name),
+            &times,
+        );
+        let model = centres_at(
+            build(name, Pose::IDENTITY).unwrap(),
+            &model_config(),
+            &times[..2],
+        );
         let moved = |a: Vec3, b: Vec3| a.distance(b);
         eprintln!("truth {truth:?}\nmodel {model:?}");
         // box2: struck by the first glide, then left alone; box3 waits until the last.
-        assert!(moved(truth[0][1], truth[1][1]) > 0.05, "box2 {:?}", truth.iter().map(|c| c[1]).collect::<Vec<_>>());
-        assert!(moved(truth[1][1], truth[3][1]) < 0.01, "box2 {:?}", truth.iter().map(|c| c[1]).collect::<Vec<_>>());
-        assert!(moved(truth[0][2], truth[2][2]) < 1e-3 && moved(truth[2][2], truth[3][2]) > 0.05, "box3 {:?}", truth.iter().map(|c| c[2]).collect::<Vec<_>>());
-        let (true_slide, model_slide) = (moved(truth[0][1], truth[1][1]), moved(model[0][1], model[1][1]));
-        assert!(model_slide < 0.7 * true_slide, "box2 slides {model_slide} (model) vs {true_slide} (truth)");
+        assert!(
+            moved(truth[0][1], truth[1][1]) > 0.05,
+            "box2 {:?}",
+            truth.iter().map(|c| c[1]).collect::<Vec<_>>()
+        );
+        assert!(
+            moved(truth[1][1], truth[3][1]) < 0.01,
+            "box2 {:?}",
+            truth.iter().map(|c| c[1]).collect::<Vec<_>>()
+        );
+        assert!(
+            moved(truth[0][2], truth[2][2]) < 1e-3 && moved(truth[2][2], truth[3][2]) > 0.05,
+            "box3 {:?}",
+            truth.iter().map(|c| c[2]).collect::<Vec<_>>()
+        );
+        let (true_slide, model_slide) = (
+            moved(truth[0][1], truth[1][1]),
+            moved(model[0][1], model[1][1]),
+        );
+        assert!(
+            model_slide < 0.7 * true_slide,
+            "box2 slides {model_slide} (model) vs {true_slide} (truth)"
+        );
         // Every box ends on the textured table, in the cameras' view.
         for c in truth[3] {
             assert!(c.x > 0.25 && c.x < 0.75 && c.y.abs() < 0.27, "{c:?}");

@@ -7,8 +7,8 @@ use crate::config::Config;
 use crate::diagnose::report::{ObjectReport, Report};
 use crate::diagnose::{DiagnoseOptions, diagnose};
 use anyhow::{Context, Result};
-use serde::Serialize;
 use glam::Vec2;
+use serde::Serialize;
 use std::path::Path;
 
 pub const START: &str = "<!-- concealed-table:start -->";
@@ -53,22 +53,41 @@ pub fn judge(name: &str, report: &Report) -> Verdict {
         _ => None,
     };
     // Where the effect shows, in any object's motion (a heavy box shows in the boxes it strikes).
-    let windows: Vec<(f64, f64, String)> = report.mismatch.iter().map(|m| (m.t_start, m.t_end, m.object.clone())).collect();
+    let windows: Vec<(f64, f64, String)> = report
+        .mismatch
+        .iter()
+        .map(|m| (m.t_start, m.t_end, m.object.clone()))
+        .collect();
     let region_ok = truth.region.map(|(c, h)| {
         // The placed patch: at least half of it is truly patch (it is known only where the box
         // went, so it may be smaller than the truth), and every located mismatch reaches into it.
-        let fitted = |n: &str| object.and_then(|o| o.parameters.iter().find(|p| p.name == n)).map(|p| p.value);
-        let (Some(cx), Some(cy), Some(hx), Some(hy)) = (fitted("center_x"), fitted("center_y"), fitted("half_size_x"), fitted("half_size_y")) else { return false };
+        let fitted = |n: &str| {
+            object
+                .and_then(|o| o.parameters.iter().find(|p| p.name == n))
+                .map(|p| p.value)
+        };
+        let (Some(cx), Some(cy), Some(hx), Some(hy)) = (
+            fitted("center_x"),
+            fitted("center_y"),
+            fitted("half_size_x"),
+            fitted("half_size_y"),
+        ) else {
+            return false;
+        };
         let (lo, hi) = (Vec2::new(cx - hx, cy - hy), Vec2::new(cx + hx, cy + hy));
         let overlap = (hi.min(c + h) - lo.max(c - h)).max(Vec2::ZERO);
         let inside = overlap.x * overlap.y >= 0.5 * (hi - lo).x * (hi - lo).y;
-        let reached = object.is_some_and(|o| o.mismatch.iter().all(|m| {
-            let (a, b) = (Vec2::from(m.footprint_min), Vec2::from(m.footprint_max));
-            (b.min(hi) - a.max(lo)).min_element() > 0.0
-        }));
+        let reached = object.is_some_and(|o| {
+            o.mismatch.iter().all(|m| {
+                let (a, b) = (Vec2::from(m.footprint_min), Vec2::from(m.footprint_max));
+                (b.min(hi) - a.max(lo)).min_element() > 0.0
+            })
+        });
         inside && reached
     });
-    let (before, after) = object.map_or((0.0, 0.0), |o| (o.before.open_loop_error_mm, o.after.open_loop_error_mm));
+    let (before, after) = object.map_or((0.0, 0.0), |o| {
+        (o.before.open_loop_error_mm, o.after.open_loop_error_mm)
+    });
     let right_effect = named == truth.effect.unwrap_or("none");
     let control = truth.effect.is_none();
     Verdict {
@@ -91,21 +110,48 @@ pub fn judge(name: &str, report: &Report) -> Verdict {
 }
 
 /// Generate and diagnose `names` at `width` x `height` into `out`; the verdicts and a Markdown table.
-pub fn run(out: &Path, names: &[String], width: u32, height: u32, progress: bool) -> Result<(Vec<Verdict>, String)> {
+pub fn run(
+    out: &Path,
+    names: &[String],
+    width: u32,
+    height: u32,
+    progress: bool,
+) -> Result<(Vec<Verdict>, String)> {
     let mut verdicts = Vec::new();
     for name in names {
         let dir = out.join(name);
-        let opts = generate::GenerateOptions { width, height, seconds: concealed::SECONDS, ..Default::default() };
+        let opts = generate::GenerateOptions {
+            width,
+            height,
+            seconds: concealed::SECONDS,
+            ..Default::default()
+        };
         generate::generate(name, &dir, &opts).with_context(|| format!("generating {name}"))?;
         let config = Config::load(&dir.join("config.yaml"))?;
-        let report = diagnose(&dir.join("recording.mcap"), &config, &dir.join("diagnosis"), DiagnoseOptions { progress, ..Default::default() })?;
+        let report = diagnose(
+            &dir.join("recording.mcap"),
+            &config,
+            &dir.join("diagnosis"),
+            DiagnoseOptions {
+                progress,
+                ..Default::default()
+            },
+        )?;
         let verdict = judge(name, &report);
         if progress {
-            eprintln!("{name}: named {} (truth {}), passed: {}", verdict.named, verdict.truth, verdict.passed());
+            eprintln!(
+                "{name}: named {} (truth {}), passed: {}",
+                verdict.named,
+                verdict.truth,
+                verdict.passed()
+            );
         }
         verdicts.push(verdict);
     }
-    std::fs::write(out.join("verdicts.json"), serde_json::to_string_pretty(&verdicts)?)?;
+    std::fs::write(
+        out.join("verdicts.json"),
+        serde_json::to_string_pretty(&verdicts)?,
+    )?;
     let mut rows = vec![
         format!("Concealed physics, 3 cameras at {width}x{height}; each diagnosis fits on the first 70 % of the recording and is judged on the rest. Generated by `pegs scenario concealed`."),
         String::new(),
@@ -117,15 +163,35 @@ pub fn run(out: &Path, names: &[String], width: u32, height: u32, progress: bool
             (Some(e), Some(t)) => format!("{e:.4} ({t:.4})"),
             _ => "-".into(),
         };
-        let windows: Vec<String> = v.windows.iter().map(|w| format!("{:.1}-{:.1}{}", w.0, w.1, if w.2 == "box" { String::new() } else { format!(" ({})", w.2) })).collect();
+        let windows: Vec<String> = v
+            .windows
+            .iter()
+            .map(|w| {
+                format!(
+                    "{:.1}-{:.1}{}",
+                    w.0,
+                    w.1,
+                    if w.2 == "box" {
+                        String::new()
+                    } else {
+                        format!(" ({})", w.2)
+                    }
+                )
+            })
+            .collect();
         rows.push(format!(
             "| {} | {} | {} | {} | {} | {} | {:.1} -> {:.1} | {} |",
             v.scenario,
             concealed::description(&v.scenario),
             v.named,
             estimate,
-            v.relative_error.map_or("-".into(), |e| format!("{:.0} %", e * 100.0)),
-            if windows.is_empty() { "-".into() } else { windows.join(", ") },
+            v.relative_error
+                .map_or("-".into(), |e| format!("{:.0} %", e * 100.0)),
+            if windows.is_empty() {
+                "-".into()
+            } else {
+                windows.join(", ")
+            },
             v.open_loop_before_mm,
             v.open_loop_after_mm,
             if v.passed() { "yes" } else { "no" }

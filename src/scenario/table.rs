@@ -19,16 +19,30 @@ pub fn run(out: &Path, width: u32, height: u32) -> Result<String> {
     ];
     for name in NAMES {
         let dir = out.join(name);
-        let opts = generate::GenerateOptions { width, height, ..Default::default() };
+        let opts = generate::GenerateOptions {
+            width,
+            height,
+            ..Default::default()
+        };
         generate::generate(name, &dir, &opts).with_context(|| format!("generating {name}"))?;
         let config = Config::load(&dir.join("config.yaml"))?;
-        let m = replay::run_compare(&dir.join("recording.mcap"), &config, &dir.join("replay"), false)?;
+        let m = replay::run_compare(
+            &dir.join("recording.mcap"),
+            &config,
+            &dir.join("replay"),
+            false,
+        )?;
         for (object, e) in &m.tracking_error {
             let c = m.comparison.get(object).cloned().unwrap_or_default();
             rows.push(format!(
                 "| {name} | {} | {object} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} |",
                 super::description(name),
-                e.mean_mm, e.p95_mm, e.final_mm, c.physics_only_mean_mm, c.visual_forces_only_mean_mm, m.wall_ms_per_tick
+                e.mean_mm,
+                e.p95_mm,
+                e.final_mm,
+                c.physics_only_mean_mm,
+                c.visual_forces_only_mean_mm,
+                m.wall_ms_per_tick
             ));
         }
     }
@@ -42,8 +56,11 @@ pub fn write_into(path: &Path, table: &str) -> Result<()> {
 
 /// Replace the text between the `start` and `end` marker lines of `path` with `text`.
 pub fn write_between(path: &Path, start: &str, end: &str, table: &str) -> Result<()> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let (Some(a), Some(b)) = (text.find(start), text.find(end)) else { bail!("{} has no {start} ... {end} block", path.display()) };
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let (Some(a), Some(b)) = (text.find(start), text.find(end)) else {
+        bail!("{} has no {start} ... {end} block", path.display())
+    };
     if b < a {
         bail!("{}: markers out of order", path.display());
     }

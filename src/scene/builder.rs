@@ -18,63 +18,188 @@ impl WorldBuilder {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn add_solid(&mut self, name: &str, kind: ShapeKind, phase: Phase, body_points: &[Vec3], radius: f32, inv_mass: f32, pose: Pose, colour: Vec3) -> ShapeId {
+    fn add_solid(
+        &mut self,
+        name: &str,
+        kind: ShapeKind,
+        phase: Phase,
+        body_points: &[Vec3],
+        radius: f32,
+        inv_mass: f32,
+        pose: Pose,
+        colour: Vec3,
+    ) -> ShapeId {
         let shape = self.world.shapes.len() as ShapeId;
         let first = self.world.particles.len();
         for &r in body_points {
-            let i = self.world.particles.push(pose.transform_point(r), inv_mass, radius, shape, phase, r);
+            let i = self.world.particles.push(
+                pose.transform_point(r),
+                inv_mass,
+                radius,
+                shape,
+                phase,
+                r,
+            );
             self.push_gaussian(i, radius, colour);
         }
-        let s = self.world.shapes.push(name, kind, first..self.world.particles.len(), pose);
-        self.world.shapes.update_mass_properties(s, &self.world.particles);
+        let s = self
+            .world
+            .shapes
+            .push(name, kind, first..self.world.particles.len(), pose);
+        self.world
+            .shapes
+            .update_mass_properties(s, &self.world.particles);
         s
     }
 
     fn push_gaussian(&mut self, particle: usize, radius: f32, colour: Vec3) {
-        self.world.gaussians.push(particle as u32, Vec3::ZERO, Quat::IDENTITY, Vec3::splat(GAUSSIAN_SCALE_PER_RADIUS * radius), 0.95, colour);
+        self.world.gaussians.push(
+            particle as u32,
+            Vec3::ZERO,
+            Quat::IDENTITY,
+            Vec3::splat(GAUSSIAN_SCALE_PER_RADIUS * radius),
+            0.95,
+            colour,
+        );
     }
 
     /// A rigid object made of particles at `body_points` (body frame), placed at `pose`.
-    pub fn add_rigid(&mut self, name: &str, body_points: &[Vec3], radius: f32, particle_mass: f32, pose: Pose, colour: Vec3) -> ShapeId {
-        self.add_solid(name, ShapeKind::Rigid, Phase::Dynamic, body_points, radius, 1.0 / particle_mass, pose, colour)
+    pub fn add_rigid(
+        &mut self,
+        name: &str,
+        body_points: &[Vec3],
+        radius: f32,
+        particle_mass: f32,
+        pose: Pose,
+        colour: Vec3,
+    ) -> ShapeId {
+        self.add_solid(
+            name,
+            ShapeKind::Rigid,
+            Phase::Dynamic,
+            body_points,
+            radius,
+            1.0 / particle_mass,
+            pose,
+            colour,
+        )
     }
 
     /// A rigid object from a model with its own particles (body frame, per-particle radii) and
     /// Gaussians (body frame), placed at the model's pose; each Gaussian is bonded to its closest
     /// particle.
-    pub fn add_rigid_model(&mut self, name: &str, model: &crate::init::ObjectModel, particle_mass: f32) -> ShapeId {
+    pub fn add_rigid_model(
+        &mut self,
+        name: &str,
+        model: &crate::init::ObjectModel,
+        particle_mass: f32,
+    ) -> ShapeId {
         let shape = self.world.shapes.len() as ShapeId;
         let first = self.world.particles.len();
         for &(r, radius) in &model.particles {
-            self.world.particles.push(model.pose.transform_point(r), 1.0 / particle_mass, radius, shape, Phase::Dynamic, r);
+            self.world.particles.push(
+                model.pose.transform_point(r),
+                1.0 / particle_mass,
+                radius,
+                shape,
+                Phase::Dynamic,
+                r,
+            );
         }
         for g in &model.gaussians {
             // The particle's frame has the body's rotation, so the offset in it is the body-frame one.
-            let closest = (0..model.particles.len()).min_by(|&a, &b| g.mean.distance_squared(model.particles[a].0).total_cmp(&g.mean.distance_squared(model.particles[b].0))).unwrap_or(0);
-            self.world.gaussians.push((first + closest) as u32, g.mean - model.particles[closest].0, g.rotation, g.scale, g.opacity, g.colour);
+            let closest = (0..model.particles.len())
+                .min_by(|&a, &b| {
+                    g.mean
+                        .distance_squared(model.particles[a].0)
+                        .total_cmp(&g.mean.distance_squared(model.particles[b].0))
+                })
+                .unwrap_or(0);
+            self.world.gaussians.push(
+                (first + closest) as u32,
+                g.mean - model.particles[closest].0,
+                g.rotation,
+                g.scale,
+                g.opacity,
+                g.colour,
+            );
         }
-        let s = self.world.shapes.push(name, ShapeKind::Rigid, first..self.world.particles.len(), model.pose);
-        self.world.shapes.update_mass_properties(s, &self.world.particles);
+        let s = self.world.shapes.push(
+            name,
+            ShapeKind::Rigid,
+            first..self.world.particles.len(),
+            model.pose,
+        );
+        self.world
+            .shapes
+            .update_mass_properties(s, &self.world.particles);
         s
     }
 
     /// A kinematic body (robot link, pusher) that follows its `Shapes::target` pose.
-    pub fn add_kinematic(&mut self, name: &str, body_points: &[Vec3], radius: f32, pose: Pose, colour: Vec3) -> ShapeId {
-        self.add_solid(name, ShapeKind::Kinematic, Phase::Kinematic, body_points, radius, 0.0, pose, colour)
+    pub fn add_kinematic(
+        &mut self,
+        name: &str,
+        body_points: &[Vec3],
+        radius: f32,
+        pose: Pose,
+        colour: Vec3,
+    ) -> ShapeId {
+        self.add_solid(
+            name,
+            ShapeKind::Kinematic,
+            Phase::Kinematic,
+            body_points,
+            radius,
+            0.0,
+            pose,
+            colour,
+        )
     }
 
     /// A body that never moves.
-    pub fn add_static(&mut self, name: &str, body_points: &[Vec3], radius: f32, pose: Pose, colour: Vec3) -> ShapeId {
-        self.add_solid(name, ShapeKind::Static, Phase::Static, body_points, radius, 0.0, pose, colour)
+    pub fn add_static(
+        &mut self,
+        name: &str,
+        body_points: &[Vec3],
+        radius: f32,
+        pose: Pose,
+        colour: Vec3,
+    ) -> ShapeId {
+        self.add_solid(
+            name,
+            ShapeKind::Static,
+            Phase::Static,
+            body_points,
+            radius,
+            0.0,
+            pose,
+            colour,
+        )
     }
 
     /// A rope through `points` (world frame): segment constraints between neighbours (rigid) and
     /// bending constraints between particles two apart with `bending_stiffness` in (0, 1].
-    pub fn add_rope(&mut self, name: &str, points: &[Vec3], radius: f32, particle_mass: f32, bending_stiffness: f32, colour: Vec3) -> ShapeId {
+    pub fn add_rope(
+        &mut self,
+        name: &str,
+        points: &[Vec3],
+        radius: f32,
+        particle_mass: f32,
+        bending_stiffness: f32,
+        colour: Vec3,
+    ) -> ShapeId {
         let shape = self.world.shapes.len() as ShapeId;
         let first = self.world.particles.len();
         for &p in points {
-            let i = self.world.particles.push(p, 1.0 / particle_mass, radius, shape, Phase::Dynamic, Vec3::ZERO);
+            let i = self.world.particles.push(
+                p,
+                1.0 / particle_mass,
+                radius,
+                shape,
+                Phase::Dynamic,
+                Vec3::ZERO,
+            );
             self.push_gaussian(i, radius, colour);
         }
         // Bending first, segments last: constraints are projected in order, so each sweep ends with
@@ -82,16 +207,30 @@ impl WorldBuilder {
         if bending_stiffness > 0.0 {
             for k in 0..points.len().saturating_sub(2) {
                 let (a, b) = (first + k, first + k + 2);
-                self.world.distance.push(a as u32, b as u32, points[k].distance(points[k + 2]), bending_stiffness);
+                self.world.distance.push(
+                    a as u32,
+                    b as u32,
+                    points[k].distance(points[k + 2]),
+                    bending_stiffness,
+                );
             }
         }
         for k in 0..points.len().saturating_sub(1) {
             let (a, b) = (first + k, first + k + 1);
-            self.world.distance.push(a as u32, b as u32, points[k].distance(points[k + 1]), 1.0);
+            self.world
+                .distance
+                .push(a as u32, b as u32, points[k].distance(points[k + 1]), 1.0);
         }
         let centroid = points.iter().copied().sum::<Vec3>() / points.len().max(1) as f32;
-        let s = self.world.shapes.push(name, ShapeKind::Rope, first..self.world.particles.len(), Pose::from_translation(centroid));
-        self.world.shapes.update_mass_properties(s, &self.world.particles);
+        let s = self.world.shapes.push(
+            name,
+            ShapeKind::Rope,
+            first..self.world.particles.len(),
+            Pose::from_translation(centroid),
+        );
+        self.world
+            .shapes
+            .update_mass_properties(s, &self.world.particles);
         s
     }
 
@@ -115,9 +254,21 @@ impl WorldBuilder {
 
     /// A Gaussian of the static scene (table, walls): world frame, no parent particle.
     pub fn add_scene_gaussian(&mut self, g: crate::render::GaussianParams) {
-        let q = glam::Quat::from_xyzw(g.rotation.x, g.rotation.y, g.rotation.z, g.rotation.w).normalize();
-        let scale = Vec3::new(g.log_scale.x.exp(), g.log_scale.y.exp(), g.log_scale.z.exp());
-        self.world.gaussians.push(crate::world::NO_PARENT, g.mean, q, scale, crate::render::sigmoid(g.opacity_logit), g.colour);
+        let q = glam::Quat::from_xyzw(g.rotation.x, g.rotation.y, g.rotation.z, g.rotation.w)
+            .normalize();
+        let scale = Vec3::new(
+            g.log_scale.x.exp(),
+            g.log_scale.y.exp(),
+            g.log_scale.z.exp(),
+        );
+        self.world.gaussians.push(
+            crate::world::NO_PARENT,
+            g.mean,
+            q,
+            scale,
+            crate::render::sigmoid(g.opacity_logit),
+            g.colour,
+        );
     }
 
     /// Recolour the Gaussians of `shape` whose parent's rest position `paint` maps to a colour.

@@ -5,7 +5,9 @@ use super::{WorldBuilder, box_lattice, t_block_lattice};
 use crate::math::Pose;
 use crate::physics::Solver;
 use crate::robot::ik::{self, IkGoal};
-use crate::robot::{GeometrySource, JointTrajectory, PackagePaths, RobotConfig, RobotInWorld, RobotModel};
+use crate::robot::{
+    GeometrySource, JointTrajectory, PackagePaths, RobotConfig, RobotInWorld, RobotModel,
+};
 use crate::world::{ShapeId, World};
 use anyhow::{Context, Result};
 use glam::{DVec3, Quat, Vec3};
@@ -40,8 +42,13 @@ impl Scene {
 
 /// The bundled Panda with its rod pusher (primitive geometry, so it needs no mesh files).
 pub fn panda_pusher() -> Result<RobotModel> {
-    RobotModel::parse(include_str!("../../urdf/panda_pusher.urdf"), std::path::Path::new("."), &PackagePaths::default(), GeometrySource::Collision)
-        .context("bundled urdf/panda_pusher.urdf")
+    RobotModel::parse(
+        include_str!("../../urdf/panda_pusher.urdf"),
+        std::path::Path::new("."),
+        &PackagePaths::default(),
+        GeometrySource::Collision,
+    )
+    .context("bundled urdf/panda_pusher.urdf")
 }
 
 /// The pusher rod's tip in the `panda_pusher` link frame.
@@ -50,15 +57,29 @@ pub const PUSHER_TIP: DVec3 = DVec3::new(0.0, 0.0, -0.14);
 /// Joint-state samples at `rate` Hz that move the pusher tip through `(time, point)` waypoints
 /// (linear between them) with the rod pointing down, by inverse kinematics warm-started from the
 /// previous sample.
-pub fn pusher_trajectory(model: &RobotModel, waypoints: &[(f64, DVec3)], rate: f64) -> Result<JointTrajectory> {
-    let link = model.link_index("panda_pusher").context("the robot has no panda_pusher link")?;
+pub fn pusher_trajectory(
+    model: &RobotModel,
+    waypoints: &[(f64, DVec3)],
+    rate: f64,
+) -> Result<JointTrajectory> {
+    let link = model
+        .link_index("panda_pusher")
+        .context("the robot has no panda_pusher link")?;
     let mut q = vec![0.0; model.joints.len()];
-    for (name, v) in [("panda_joint2", -0.3), ("panda_joint4", -2.2), ("panda_joint6", 1.9), ("panda_joint7", 0.785)] {
+    for (name, v) in [
+        ("panda_joint2", -0.3),
+        ("panda_joint4", -2.2),
+        ("panda_joint6", 1.9),
+        ("panda_joint7", 0.785),
+    ] {
         if let Some(k) = model.joint_index(name) {
             q[k] = v;
         }
     }
-    let (t0, t1) = (waypoints.first().map_or(0.0, |w| w.0), waypoints.last().map_or(0.0, |w| w.0));
+    let (t0, t1) = (
+        waypoints.first().map_or(0.0, |w| w.0),
+        waypoints.last().map_or(0.0, |w| w.0),
+    );
     let mut trajectory = JointTrajectory::default();
     let samples = ((t1 - t0) * rate).ceil() as usize;
     for k in 0..=samples {
@@ -66,11 +87,23 @@ pub fn pusher_trajectory(model: &RobotModel, waypoints: &[(f64, DVec3)], rate: f
         let target = match waypoints.iter().position(|w| w.0 > t) {
             None => waypoints.last().map_or(DVec3::ZERO, |w| w.1),
             Some(0) => waypoints[0].1,
-            Some(i) => waypoints[i - 1].1.lerp(waypoints[i].1, (t - waypoints[i - 1].0) / (waypoints[i].0 - waypoints[i - 1].0)),
+            Some(i) => waypoints[i - 1].1.lerp(
+                waypoints[i].1,
+                (t - waypoints[i - 1].0) / (waypoints[i].0 - waypoints[i - 1].0),
+            ),
         };
-        let goal = IkGoal { link, point: PUSHER_TIP, target, axis: DVec3::NEG_Z, direction: Some(DVec3::NEG_Z) };
+        let goal = IkGoal {
+            link,
+            point: PUSHER_TIP,
+            target,
+            axis: DVec3::NEG_Z,
+            direction: Some(DVec3::NEG_Z),
+        };
         let (solution, error) = ik::solve(model, &q, &goal, 100);
-        anyhow::ensure!(error < 1e-3, "pusher cannot reach {target} (IK error {error} m)");
+        anyhow::ensure!(
+            error < 1e-3,
+            "pusher cannot reach {target} (IK error {error} m)"
+        );
         q = solution;
         trajectory.push(t, q.clone());
     }
@@ -113,14 +146,36 @@ pub fn tabletop() -> Result<Scene> {
     let mut b = WorldBuilder::new();
     let t_points = t_block_lattice(0.2, 0.05, 0.03, spacing);
     let t_rest_z = RADIUS + spacing; // three layers: centre layer one spacing above the lowest
-    b.add_rigid("tblock", &t_points, RADIUS, PARTICLE_MASS, Pose::new(Vec3::new(0.5, 0.0, t_rest_z), Quat::from_rotation_z(0.35)), ORANGE);
+    b.add_rigid(
+        "tblock",
+        &t_points,
+        RADIUS,
+        PARTICLE_MASS,
+        Pose::new(Vec3::new(0.5, 0.0, t_rest_z), Quat::from_rotation_z(0.35)),
+        ORANGE,
+    );
     let box_half = Vec3::splat(0.03);
-    b.add_rigid("box", &box_lattice(box_half, spacing), RADIUS, PARTICLE_MASS, Pose::new(Vec3::new(0.53, 0.2, 0.25), Quat::from_rotation_x(0.3)), BLUE);
-    let rope_points: Vec<Vec3> = (0..40).map(|k| Vec3::new(0.25 + k as f32 * spacing, -0.4, RADIUS)).collect();
+    b.add_rigid(
+        "box",
+        &box_lattice(box_half, spacing),
+        RADIUS,
+        PARTICLE_MASS,
+        Pose::new(Vec3::new(0.53, 0.2, 0.25), Quat::from_rotation_x(0.3)),
+        BLUE,
+    );
+    let rope_points: Vec<Vec3> = (0..40)
+        .map(|k| Vec3::new(0.25 + k as f32 * spacing, -0.4, RADIUS))
+        .collect();
     let rope = b.add_rope("rope", &rope_points, RADIUS, PARTICLE_MASS, 0.2, GREEN);
     let rope_end = b.world().shapes.range(rope).start;
     let grip_start = rope_points[0] - Vec3::new(spacing, 0.0, 0.0);
-    let gripper = b.add_kinematic("gripper", &[Vec3::ZERO], RADIUS, Pose::from_translation(grip_start), WHITE);
+    let gripper = b.add_kinematic(
+        "gripper",
+        &[Vec3::ZERO],
+        RADIUS,
+        Pose::from_translation(grip_start),
+        WHITE,
+    );
     let grip_particle = b.world().shapes.range(gripper).start;
     b.attach(grip_particle, rope_end);
 
@@ -134,13 +189,32 @@ pub fn tabletop() -> Result<Scene> {
     ];
     let trajectory = pusher_trajectory(&model, &waypoints, 30.0)?;
     let q0 = trajectory.at(0.0).context("empty trajectory")?;
-    let robot = RobotInWorld::add(&mut b, model, &q0, &RobotConfig { particle_radius: RADIUS, ..RobotConfig::default() })?;
+    let robot = RobotInWorld::add(
+        &mut b,
+        model,
+        &q0,
+        &RobotConfig {
+            particle_radius: RADIUS,
+            ..RobotConfig::default()
+        },
+    )?;
     let world = b.build();
     let scripts: Vec<(ShapeId, Script)> = vec![(
         gripper,
-        waypoints_script(vec![(0.3, grip_start), (1.0, grip_start + Vec3::new(0.0, 0.0, 0.1)), (3.0, grip_start + Vec3::new(0.2, -0.1, 0.1))], Quat::IDENTITY),
+        waypoints_script(
+            vec![
+                (0.3, grip_start),
+                (1.0, grip_start + Vec3::new(0.0, 0.0, 0.1)),
+                (3.0, grip_start + Vec3::new(0.2, -0.1, 0.1)),
+            ],
+            Quat::IDENTITY,
+        ),
     )];
-    Ok(Scene { world, scripts, robot: Some((robot, trajectory)) })
+    Ok(Scene {
+        world,
+        scripts,
+        robot: Some((robot, trajectory)),
+    })
 }
 
 /// `n` dynamic particles as a field of 3x3x3 cubes standing in a tight grid on the ground (two
@@ -158,10 +232,25 @@ pub fn cube_field(n: usize) -> Scene {
         let layer = c / per_layer;
         let k = c % per_layer;
         let (ix, iy) = (k % side, k / side);
-        let centre = Vec3::new(ix as f32 * pitch, iy as f32 * pitch, RADIUS + spacing + layer as f32 * 3.0 * spacing);
-        b.add_rigid(&format!("cube{c}"), &cube, RADIUS, PARTICLE_MASS, Pose::from_translation(centre), BLUE);
+        let centre = Vec3::new(
+            ix as f32 * pitch,
+            iy as f32 * pitch,
+            RADIUS + spacing + layer as f32 * 3.0 * spacing,
+        );
+        b.add_rigid(
+            &format!("cube{c}"),
+            &cube,
+            RADIUS,
+            PARTICLE_MASS,
+            Pose::from_translation(centre),
+            BLUE,
+        );
     }
-    Scene { world: b.build(), scripts: Vec::new(), robot: None }
+    Scene {
+        world: b.build(),
+        scripts: Vec::new(),
+        robot: None,
+    }
 }
 
 /// The paper's pushing setup in particles: a T-block (525 particles, one rigid shape) and the
@@ -170,11 +259,25 @@ pub fn cube_field(n: usize) -> Scene {
 pub fn tblock_and_robot() -> Result<Scene> {
     let spacing = 2.0 * RADIUS;
     let mut b = WorldBuilder::new();
-    b.add_rigid("tblock", &t_block_lattice(0.2, 0.05, 0.03, spacing), RADIUS, PARTICLE_MASS, Pose::from_translation(Vec3::new(0.5, 0.0, RADIUS + spacing)), ORANGE);
+    b.add_rigid(
+        "tblock",
+        &t_block_lattice(0.2, 0.05, 0.03, spacing),
+        RADIUS,
+        PARTICLE_MASS,
+        Pose::from_translation(Vec3::new(0.5, 0.0, RADIUS + spacing)),
+        ORANGE,
+    );
     let model = panda_pusher()?;
-    let waypoints = [(0.0, DVec3::new(0.5, -0.2, 0.02)), (4.0, DVec3::new(0.5, 0.1, 0.02))];
+    let waypoints = [
+        (0.0, DVec3::new(0.5, -0.2, 0.02)),
+        (4.0, DVec3::new(0.5, 0.1, 0.02)),
+    ];
     let trajectory = pusher_trajectory(&model, &waypoints, 30.0)?;
     let q0 = trajectory.at(0.0).context("empty trajectory")?;
     let robot = RobotInWorld::add(&mut b, model, &q0, &RobotConfig::default())?;
-    Ok(Scene { world: b.build(), scripts: Vec::new(), robot: Some((robot, trajectory)) })
+    Ok(Scene {
+        world: b.build(),
+        scripts: Vec::new(),
+        robot: Some((robot, trajectory)),
+    })
 }

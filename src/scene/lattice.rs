@@ -11,12 +11,18 @@ fn count_along(half: f32, spacing: f32) -> usize {
 /// Centres along one axis, symmetric about zero.
 fn axis(half: f32, spacing: f32) -> Vec<f32> {
     let n = count_along(half, spacing);
-    (0..n).map(|k| (k as f32 - (n - 1) as f32 / 2.0) * spacing).collect()
+    (0..n)
+        .map(|k| (k as f32 - (n - 1) as f32 / 2.0) * spacing)
+        .collect()
 }
 
 /// A box with half extents `half`, body origin at its centre.
 pub fn box_lattice(half: Vec3, spacing: f32) -> Vec<Vec3> {
-    let (xs, ys, zs) = (axis(half.x, spacing), axis(half.y, spacing), axis(half.z, spacing));
+    let (xs, ys, zs) = (
+        axis(half.x, spacing),
+        axis(half.y, spacing),
+        axis(half.z, spacing),
+    );
     let mut out = Vec::with_capacity(xs.len() * ys.len() * zs.len());
     for &z in &zs {
         for &y in &ys {
@@ -58,9 +64,12 @@ pub fn t_block_lattice(width: f32, bar: f32, thickness: f32, spacing: f32) -> Ve
         .into_iter()
         .map(|p| p + Vec3::new(0.0, half - bar / 2.0, 0.0));
     let stem_len = width - bar;
-    let stem = box_lattice(Vec3::new(bar / 2.0, stem_len / 2.0, thickness / 2.0), spacing)
-        .into_iter()
-        .map(|p| p + Vec3::new(0.0, -half + stem_len / 2.0, 0.0));
+    let stem = box_lattice(
+        Vec3::new(bar / 2.0, stem_len / 2.0, thickness / 2.0),
+        spacing,
+    )
+    .into_iter()
+    .map(|p| p + Vec3::new(0.0, -half + stem_len / 2.0, 0.0));
     top.chain(stem).collect()
 }
 
@@ -94,6 +103,10 @@ mod tests {
     fn cylinder_lattice_stays_inside_the_cylinder() {
         let pts = cylinder_lattice(0.02, 0.1, 0.01);
         assert!(!pts.is_empty());
-        assert!(pts.iter().all(|p| (p.x * p.x + p.y * p.y).sqrt() <= 0.015 + 1e-6 && p.z.abs() <= 0.045 + 1e-6));
+        assert!(
+            pts.iter().all(
+                |p| (p.x * p.x + p.y * p.y).sqrt() <= 0.015 + 1e-6 && p.z.abs() <= 0.045 + 1e-6
+            )
+        );
     }
 }

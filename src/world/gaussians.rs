@@ -32,7 +32,15 @@ impl Gaussians {
         self.parent.is_empty()
     }
 
-    pub fn push(&mut self, parent: u32, local_mean: Vec3, local_rotation: Quat, scale: Vec3, opacity: f32, colour: Vec3) -> usize {
+    pub fn push(
+        &mut self,
+        parent: u32,
+        local_mean: Vec3,
+        local_rotation: Quat,
+        scale: Vec3,
+        opacity: f32,
+        colour: Vec3,
+    ) -> usize {
         self.parent.push(parent);
         self.local_mean.push(local_mean);
         self.local_rotation.push(local_rotation);

@@ -41,10 +41,22 @@ impl Particles {
     }
 
     #[allow(clippy::too_many_arguments)]
-    pub fn push(&mut self, position: Vec3, inv_mass: f32, radius: f32, shape: ShapeId, phase: Phase, rest: Vec3) -> usize {
+    pub fn push(
+        &mut self,
+        position: Vec3,
+        inv_mass: f32,
+        radius: f32,
+        shape: ShapeId,
+        phase: Phase,
+        rest: Vec3,
+    ) -> usize {
         self.position.push(position);
         self.velocity.push(Vec3::ZERO);
-        self.inv_mass.push(if phase == Phase::Dynamic { inv_mass } else { 0.0 });
+        self.inv_mass.push(if phase == Phase::Dynamic {
+            inv_mass
+        } else {
+            0.0
+        });
         self.radius.push(radius);
         self.shape.push(shape);
         self.phase.push(phase);
@@ -54,6 +66,10 @@ impl Particles {
     }
 
     pub fn mass(&self, i: usize) -> f32 {
-        if self.inv_mass[i] > 0.0 { 1.0 / self.inv_mass[i] } else { f32::INFINITY }
+        if self.inv_mass[i] > 0.0 {
+            1.0 / self.inv_mass[i]
+        } else {
+            f32::INFINITY
+        }
     }
 }

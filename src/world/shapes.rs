@@ -55,11 +55,18 @@ impl Shapes {
         first..first + self.particle_count[s as usize] as usize
     }
 
-    pub fn push(&mut self, name: &str, kind: ShapeKind, particles: Range<usize>, pose: Pose) -> ShapeId {
+    pub fn push(
+        &mut self,
+        name: &str,
+        kind: ShapeKind,
+        particles: Range<usize>,
+        pose: Pose,
+    ) -> ShapeId {
         self.name.push(name.to_string());
         self.kind.push(kind);
         self.first_particle.push(particles.start as u32);
-        self.particle_count.push((particles.end - particles.start) as u32);
+        self.particle_count
+            .push((particles.end - particles.start) as u32);
         self.pose.push(pose);
         self.target.push(pose);
         self.mass.push(0.0);
@@ -72,16 +79,41 @@ impl Shapes {
     /// and rest positions (ropes: from current positions, as they have no rest frame).
     pub fn update_mass_properties(&mut self, s: ShapeId, particles: &Particles) {
         let range = self.range(s);
-        let point = |i: usize| if self.kind[s as usize] == ShapeKind::Rope { particles.position[i] } else { particles.rest[i] };
-        let masses: Vec<f32> = range.clone().map(|i| if particles.inv_mass[i] > 0.0 { 1.0 / particles.inv_mass[i] } else { 0.0 }).collect();
+        let point = |i: usize| {
+            if self.kind[s as usize] == ShapeKind::Rope {
+                particles.position[i]
+            } else {
+                particles.rest[i]
+            }
+        };
+        let masses: Vec<f32> = range
+            .clone()
+            .map(|i| {
+                if particles.inv_mass[i] > 0.0 {
+                    1.0 / particles.inv_mass[i]
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         let mass: f32 = masses.iter().sum();
-        let com = if mass > 0.0 { range.clone().zip(&masses).map(|(i, m)| *m * point(i)).sum::<Vec3>() / mass } else { Vec3::ZERO };
+        let com = if mass > 0.0 {
+            range
+                .clone()
+                .zip(&masses)
+                .map(|(i, m)| *m * point(i))
+                .sum::<Vec3>()
+                / mass
+        } else {
+            Vec3::ZERO
+        };
         let mut inertia = Mat3::ZERO;
         for (i, m) in range.zip(&masses) {
             let r = point(i) - com;
             let sphere = 0.4 * m * particles.radius[i] * particles.radius[i];
             // m (|r|^2 I - r r^T) for the point, plus the sphere's own inertia.
-            inertia += Mat3::from_diagonal(Vec3::splat(m * r.length_squared() + sphere)) - Mat3::from_cols(r * r.x, r * r.y, r * r.z) * *m;
+            inertia += Mat3::from_diagonal(Vec3::splat(m * r.length_squared() + sphere))
+                - Mat3::from_cols(r * r.x, r * r.y, r * r.z) * *m;
         }
         self.mass[s as usize] = mass;
         self.center_of_mass[s as usize] = com;
@@ -90,7 +122,8 @@ impl Shapes {
 
     /// Ids of the shapes that physics moves (rigid objects and ropes).
     pub fn dynamic_ids(&self) -> impl Iterator<Item = ShapeId> + '_ {
-        (0..self.len() as ShapeId).filter(|&s| matches!(self.kind[s as usize], ShapeKind::Rigid | ShapeKind::Rope))
+        (0..self.len() as ShapeId)
+            .filter(|&s| matches!(self.kind[s as usize], ShapeKind::Rigid | ShapeKind::Rope))
     }
 }
 
@@ -104,19 +137,40 @@ mod tests {
     fn box_mass_properties_match_the_discrete_lattice_formula() {
         let (r, m) = (0.005, 0.002);
         let mut b = WorldBuilder::new();
-        let s = b.add_rigid("box", &box_lattice(Vec3::new(0.04, 0.02, 0.01), 2.0 * r), r, m, Pose::from_translation(Vec3::new(1.0, 2.0, 3.0)), Vec3::ONE);
+        let s = b.add_rigid(
+            "box",
+            &box_lattice(Vec3::new(0.04, 0.02, 0.01), 2.0 * r),
+            r,
+            m,
+            Pose::from_translation(Vec3::new(1.0, 2.0, 3.0)),
+            Vec3::ONE,
+        );
         let w = b.build();
         let (nx, ny, nz) = (8.0f32, 4.0f32, 2.0f32);
         let n = nx * ny * nz;
         assert!((w.shapes.mass[s as usize] - n * m).abs() < 1e-6);
-        assert!(w.shapes.center_of_mass[s as usize].length() < 1e-6, "body frame is centred");
+        assert!(
+            w.shapes.center_of_mass[s as usize].length() < 1e-6,
+            "body frame is centred"
+        );
         // Sum of squared lattice coordinates along an axis with k points at spacing d: d^2 k (k^2 - 1) / 12, per line.
         let sq = |k: f32, others: f32| (2.0 * r).powi(2) * k * (k * k - 1.0) / 12.0 * others;
         let (sx, sy, sz) = (sq(nx, ny * nz), sq(ny, nx * nz), sq(nz, nx * ny));
         let sphere = 0.4 * m * r * r * n;
         let i = w.shapes.inertia[s as usize];
-        let want = Vec3::new(m * (sy + sz) + sphere, m * (sx + sz) + sphere, m * (sx + sy) + sphere);
-        assert!((i.diagonal() - want).abs().max_element() < 1e-9, "{:?} vs {want:?}", i.diagonal());
-        assert!(i.x_axis.y.abs() < 1e-10 && i.x_axis.z.abs() < 1e-10 && i.y_axis.z.abs() < 1e-10, "symmetric box: no products of inertia");
+        let want = Vec3::new(
+            m * (sy + sz) + sphere,
+            m * (sx + sz) + sphere,
+            m * (sx + sy) + sphere,
+        );
+        assert!(
+            (i.diagonal() - want).abs().max_element() < 1e-9,
+            "{:?} vs {want:?}",
+            i.diagonal()
+        );
+        assert!(
+            i.x_axis.y.abs() < 1e-10 && i.x_axis.z.abs() < 1e-10 && i.y_axis.z.abs() < 1e-10,
+            "symmetric box: no products of inertia"
+        );
     }
 }

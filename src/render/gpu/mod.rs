@@ -18,9 +18,21 @@ const KERNELS: [(&str, &str, &[u32]); 7] = [
     ("scan_tiles", include_str!("scan.wgsl"), &[0, 4, 5]),
     ("emit", include_str!("emit.wgsl"), &[0, 3, 5, 6, 7]),
     ("sort_tiles", include_str!("sort.wgsl"), &[0, 2, 5, 7]),
-    ("raster_forward", include_str!("raster.wgsl"), &[0, 2, 5, 7, 8, 9]),
-    ("raster_backward", include_str!("backward.wgsl"), &[0, 2, 5, 7, 9, 10, 11]),
-    ("gather_backward", include_str!("gather.wgsl"), &[0, 1, 2, 3, 5, 7, 11, 12]),
+    (
+        "raster_forward",
+        include_str!("raster.wgsl"),
+        &[0, 2, 5, 7, 8, 9],
+    ),
+    (
+        "raster_backward",
+        include_str!("backward.wgsl"),
+        &[0, 2, 5, 7, 9, 10, 11],
+    ),
+    (
+        "gather_backward",
+        include_str!("gather.wgsl"),
+        &[0, 1, 2, 3, 5, 7, 11, 12],
+    ),
 ];
 
 #[repr(C)]
@@ -67,7 +79,12 @@ impl Slot {
     fn ensure(&mut self, device: &wgpu::Device, bytes: u64, label: &str) {
         let bytes = bytes.max(16).next_multiple_of(16);
         if self.buffer.as_ref().is_none_or(|b| b.size() < bytes) {
-            self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: bytes, usage: self.usage, mapped_at_creation: false }));
+            self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes,
+                usage: self.usage,
+                mapped_at_creation: false,
+            }));
         }
     }
 }
@@ -98,9 +115,13 @@ impl GpuRenderer {
     /// Open the first adapter wgpu offers (honours `WGPU_BACKEND`, e.g. `vulkan` for lavapipe).
     pub fn new(settings: RenderSettings) -> Result<Self> {
         if settings.tile != 16 {
-            bail!("the wgpu backend renders 16 x 16 tiles (render.tile = {})", settings.tile);
+            bail!(
+                "the wgpu backend renders 16 x 16 tiles (render.tile = {})",
+                settings.tile
+            );
         }
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             ..Default::default()
@@ -133,9 +154,22 @@ impl GpuRenderer {
                 Kernel { pipeline, bindings }
             })
             .collect();
-        let mut slots: Vec<Slot> = (0..13).map(|_| Slot { buffer: None, usage: storage() }).collect();
+        let mut slots: Vec<Slot> = (0..13)
+            .map(|_| Slot {
+                buffer: None,
+                usage: storage(),
+            })
+            .collect();
         slots[0].usage = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
-        Ok(Self { settings, device, queue, adapter: adapter_name, kernels, slots, frame: None })
+        Ok(Self {
+            settings,
+            device,
+            queue,
+            adapter: adapter_name,
+            kernels,
+            slots,
+            frame: None,
+        })
     }
 
     /// The adapter in use, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, Cpu)".
@@ -144,7 +178,10 @@ impl GpuRenderer {
     }
 
     fn buffer(&self, binding: u32) -> &wgpu::Buffer {
-        self.slots[binding as usize].buffer.as_ref().expect("buffer allocated before use")
+        self.slots[binding as usize]
+            .buffer
+            .as_ref()
+            .expect("buffer allocated before use")
     }
 
     fn dispatch(&self, encoder: &mut wgpu::CommandEncoder, kernel: usize, groups: (u32, u32)) {
@@ -152,9 +189,23 @@ impl GpuRenderer {
             return;
         }
         let k = &self.kernels[kernel];
-        let entries: Vec<wgpu::BindGroupEntry> = k.bindings.iter().map(|&b| wgpu::BindGroupEntry { binding: b, resource: self.buffer(b).as_entire_binding() }).collect();
-        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor { label: None, layout: &k.pipeline.get_bind_group_layout(0), entries: &entries });
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(KERNELS[kernel].0), timestamp_writes: None });
+        let entries: Vec<wgpu::BindGroupEntry> = k
+            .bindings
+            .iter()
+            .map(|&b| wgpu::BindGroupEntry {
+                binding: b,
+                resource: self.buffer(b).as_entire_binding(),
+            })
+            .collect();
+        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &k.pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        });
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(KERNELS[kernel].0),
+            timestamp_writes: None,
+        });
         pass.set_pipeline(&k.pipeline);
         pass.set_bind_group(0, &group, &[]);
         pass.dispatch_workgroups(groups.0, groups.1, 1);
@@ -177,19 +228,37 @@ impl GpuRenderer {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| anyhow!("GPU poll failed: {e}"))?;
-        rx.recv().context("GPU read-back never completed")?.map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
-        let data = slice.get_mapped_range().map_err(|e| anyhow!("cannot map read-back: {e:?}"))?.to_vec();
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| anyhow!("GPU poll failed: {e}"))?;
+        rx.recv()
+            .context("GPU read-back never completed")?
+            .map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+        let data = slice
+            .get_mapped_range()
+            .map_err(|e| anyhow!("cannot map read-back: {e:?}"))?
+            .to_vec();
         staging.unmap();
         Ok(data)
     }
 
-    fn params(&self, camera: &Camera, roi: Roi, n: usize, tiles: (u32, u32), tile_origin: (u32, u32)) -> Params {
+    fn params(
+        &self,
+        camera: &Camera,
+        roi: Roi,
+        n: usize,
+        tiles: (u32, u32),
+        tile_origin: (u32, u32),
+    ) -> Params {
         let r = camera.rotation();
         let s = &self.settings;
         let t = camera.world_to_camera.translation;
         Params {
-            rot: [r.x_axis.extend(0.0).to_array(), r.y_axis.extend(0.0).to_array(), r.z_axis.extend(0.0).to_array()],
+            rot: [
+                r.x_axis.extend(0.0).to_array(),
+                r.y_axis.extend(0.0).to_array(),
+                r.z_axis.extend(0.0).to_array(),
+            ],
             trans: t.extend(0.0).to_array(),
             intr: [camera.fx, camera.fy, camera.cx, camera.cy],
             background: s.background.extend(s.blur).to_array(),
@@ -202,11 +271,23 @@ impl GpuRenderer {
     }
 
     /// Render `cloud` into `camera` over `roi` (clamped to the image).
-    pub fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi) -> Result<RenderOutput> {
+    pub fn forward(
+        &mut self,
+        cloud: &GaussianCloud,
+        camera: &Camera,
+        roi: Roi,
+    ) -> Result<RenderOutput> {
         let roi = roi.clamped(camera);
         let n = cloud.len();
         let tile_origin = (roi.x0 / 16, roi.y0 / 16);
-        let tiles = if roi.pixels() == 0 { (0, 0) } else { ((roi.x1 - 1) / 16 - tile_origin.0 + 1, (roi.y1 - 1) / 16 - tile_origin.1 + 1) };
+        let tiles = if roi.pixels() == 0 {
+            (0, 0)
+        } else {
+            (
+                (roi.x1 - 1) / 16 - tile_origin.0 + 1,
+                (roi.y1 - 1) / 16 - tile_origin.1 + 1,
+            )
+        };
         let n_tiles = (tiles.0 * tiles.1) as u64;
         let d = &self.device;
         let params = self.params(camera, roi, n, tiles, tile_origin);
@@ -227,9 +308,11 @@ impl GpuRenderer {
                 colour: cloud.colour[i].extend(0.0).to_array(),
             })
             .collect();
-        self.queue.write_buffer(self.buffer(0), 0, bytemuck::bytes_of(&params));
+        self.queue
+            .write_buffer(self.buffer(0), 0, bytemuck::bytes_of(&params));
         if n > 0 {
-            self.queue.write_buffer(self.buffer(1), 0, bytemuck::cast_slice(&gaussians));
+            self.queue
+                .write_buffer(self.buffer(1), 0, bytemuck::cast_slice(&gaussians));
         }
         let mut enc = d.create_command_encoder(&Default::default());
         enc.clear_buffer(self.buffer(4), 0, None);
@@ -246,7 +329,12 @@ impl GpuRenderer {
             let all = self.read(enc, 5, 4 * (n_tiles + 1))?;
             all[staging_src as usize..staging_src as usize + 4].to_vec()
         };
-        let n_pairs = u32::from_le_bytes([total_bytes[0], total_bytes[1], total_bytes[2], total_bytes[3]]) as u64;
+        let n_pairs = u32::from_le_bytes([
+            total_bytes[0],
+            total_bytes[1],
+            total_bytes[2],
+            total_bytes[3],
+        ]) as u64;
         self.slots[7].ensure(&self.device, 4 * n_pairs, "pairs");
         let mut enc = self.device.create_command_encoder(&Default::default());
         self.dispatch(&mut enc, 2, ((n as u32).div_ceil(256), 1));
@@ -255,9 +343,18 @@ impl GpuRenderer {
         let pixels = roi.pixels();
         let image = self.read(enc, 8, 16 * pixels as u64)?;
         let image: &[[f32; 4]] = bytemuck::cast_slice(&image[..16 * pixels]);
-        let aux = self.read(self.device.create_command_encoder(&Default::default()), 9, 16 * pixels as u64)?;
+        let aux = self.read(
+            self.device.create_command_encoder(&Default::default()),
+            9,
+            16 * pixels as u64,
+        )?;
         let aux: &[[f32; 4]] = bytemuck::cast_slice(&aux[..16 * pixels]);
-        self.frame = Some(Frame { roi, n_gaussians: n, n_pairs, tiles });
+        self.frame = Some(Frame {
+            roi,
+            n_gaussians: n,
+            n_pairs,
+            tiles,
+        });
         Ok(RenderOutput {
             roi: Some(roi),
             colour: image.iter().map(|p| Vec3::new(p[0], p[1], p[2])).collect(),
@@ -269,16 +366,25 @@ impl GpuRenderer {
     /// Gradients of a loss with respect to `cloud` given its gradients with respect to the images
     /// of the last `forward` (which must have rendered this same cloud).
     pub fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads> {
-        let Some(f) = &self.frame else { bail!("backward called before forward") };
+        let Some(f) = &self.frame else {
+            bail!("backward called before forward")
+        };
         let n_px = f.roi.pixels();
         if d_image.colour.len() != n_px
             || !(d_image.alpha.is_empty() || d_image.alpha.len() == n_px)
             || !(d_image.depth.is_empty() || d_image.depth.len() == n_px)
         {
-            bail!("pixel gradients do not match the rendered window ({} pixels)", n_px);
+            bail!(
+                "pixel gradients do not match the rendered window ({} pixels)",
+                n_px
+            );
         }
         if f.n_gaussians != cloud.len() {
-            bail!("backward for a cloud of {} Gaussians after rendering {}", cloud.len(), f.n_gaussians);
+            bail!(
+                "backward for a cloud of {} Gaussians after rendering {}",
+                cloud.len(),
+                f.n_gaussians
+            );
         }
         let (n, n_pairs, tiles) = (f.n_gaussians, f.n_pairs, f.tiles);
         let upstream: Vec<[f32; 8]> = (0..n_px)
@@ -294,7 +400,8 @@ impl GpuRenderer {
         self.slots[11].ensure(d, PARTIAL_SIZE * n_pairs, "partials");
         self.slots[12].ensure(d, GRAD_SIZE * n as u64, "grads");
         if n_px > 0 {
-            self.queue.write_buffer(self.buffer(10), 0, bytemuck::cast_slice(&upstream));
+            self.queue
+                .write_buffer(self.buffer(10), 0, bytemuck::cast_slice(&upstream));
         }
         let mut enc = self.device.create_command_encoder(&Default::default());
         enc.clear_buffer(self.buffer(11), 0, None);
