@@ -1,8 +1,8 @@
 //! `pegs bench`: speed measurements printed as JSON (targets live here, not in tests).
 
-use crate::config::PhysicsConfig;
+use crate::physics::PhysicsConfig;
 use crate::physics::Solver;
-use crate::scene::builtin::{self, Scene};
+use crate::scene::{self, Scene};
 use crate::world::Phase;
 use anyhow::Result;
 use serde::Serialize;
@@ -38,10 +38,10 @@ pub type SceneMaker = (&'static str, fn() -> Result<Scene>);
 /// The scenes `pegs bench physics` measures, by name.
 pub fn physics_scenes() -> Vec<SceneMaker> {
     vec![
-        ("cube_field_1k", || Ok(builtin::cube_field(1_000))),
-        ("cube_field_10k", || Ok(builtin::cube_field(10_000))),
-        ("cube_field_50k", || Ok(builtin::cube_field(50_000))),
-        ("tblock_robot", builtin::tblock_and_robot),
+        ("cube_field_1k", || Ok(scene::cube_field(1_000))),
+        ("cube_field_10k", || Ok(scene::cube_field(10_000))),
+        ("cube_field_50k", || Ok(scene::cube_field(50_000))),
+        ("tblock_robot", scene::tblock_and_robot),
     ]
 }
 
@@ -156,7 +156,7 @@ pub fn tblock_render_scene(
     }
     // T-block: a 4-layer lattice at 11.2 mm, one Gaussian per point (480).
     let start = cloud.len();
-    for p in crate::scene::t_block_lattice(0.2, 0.05, 0.045, 0.0112) {
+    for p in crate::world::t_block_lattice(0.2, 0.05, 0.045, 0.0112) {
         cloud.push(GaussianParams {
             mean: p + Vec3::new(0.45, 0.0, 0.02),
             rotation: unit,
@@ -317,7 +317,7 @@ pub struct TickBench {
 /// beforehand, outside the timing) for each resolution and backend.
 pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> Result<TickBench> {
     use crate::config::Config;
-    use crate::correct::View;
+    use crate::inputs::TickInputs;
     use crate::scenario;
     use crate::tracker::Tracker;
     let mut runs = Vec::new();
@@ -345,29 +345,15 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
                 }
             };
             let (mut predict, mut correct) = (Vec::new(), Vec::new());
+            let dt = config.physics.dt as f64;
             for k in 0..ticks + 2 {
-                truth.tick(&[])?;
-                let images = scenario::observe(&truth.scene.world, &cameras, 0.01, 1.0, k as u64);
-                let views: Vec<View> = cameras
-                    .iter()
-                    .zip(&images)
-                    .map(|(c, i)| View {
-                        camera: *c,
-                        image: i,
-                    })
-                    .collect();
-                let t = Instant::now();
-                model.scene.advance(&mut model.solver)?;
-                let p = t.elapsed().as_secs_f64() * 1e3;
-                let t = Instant::now();
-                let dt = model.solver.config().dt;
-                if let Some(c) = &mut model.corrector {
-                    c.correct(&mut model.scene.world, &views, dt)?;
-                }
-                let c = t.elapsed().as_secs_f64() * 1e3;
+                truth.predict()?;
+                let images = scenario::observe(truth.world(), &cameras, 0.01, 1.0, k as u64);
+                let inputs = TickInputs::with_images(model.time() + dt, &cameras, images);
+                let report = model.tick(&inputs)?;
                 if k >= 2 {
-                    predict.push(p);
-                    correct.push(c);
+                    predict.push(report.predict_ms);
+                    correct.push(report.correct_ms);
                 }
             }
             let (p, c) = (median(predict), median(correct));

@@ -1,359 +1,31 @@
-//! Configuration: every number of the model lives here, with the paper's values as defaults.
-//! Files are YAML in the ROS 2 parameter-file layout (`<node>: ros__parameters: {...}`) so the same
-//! file serves `pegs node --params-file`; a plain mapping without that wrapper is accepted too.
+//! Configuration: assembles the sections, each defined and validated beside what it configures
+//! (`physics::PhysicsConfig`, `robot::RobotConfig`, `render::RenderSettings`,
+//! `correct::CorrectConfig`, `init::SceneConfig`, `topics::NodeConfig`), loads them and saves
+//! them. Files are YAML in the ROS 2 parameter-file layout (`<node>: ros__parameters: {...}`) so
+//! the same file serves `pegs node --params-file`; a plain mapping without that wrapper is
+//! accepted too. A model file (`ModelFile`) adds a diagnosis's effects to a configuration.
 
-use crate::physics::Effect;
-use anyhow::{Context, Result, bail};
-use glam::{Vec2, Vec3};
+use crate::correct::CorrectConfig;
+use crate::init::SceneConfig;
+use crate::physics::{Effect, PhysicsConfig};
+use crate::render::RenderSettings;
+use crate::robot::RobotConfig;
+use crate::topics::NodeConfig;
+use anyhow::{Context, Result};
+use glam::Vec3;
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-/// The whole configuration file. Sections grow with the system (render, correct, ros, ...).
+/// The whole configuration file: one field per section.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Config {
     pub physics: PhysicsConfig,
-    pub robot: crate::robot::RobotConfig,
-    pub render: crate::render::RenderSettings,
-    pub correct: crate::correct::CorrectConfig,
+    pub robot: RobotConfig,
+    pub render: RenderSettings,
+    pub correct: CorrectConfig,
     pub scene: SceneConfig,
-    pub node: crate::ros::NodeConfig,
-}
-
-/// Where the tracker's world comes from: a built-in scenario's world (with its tracked object
-/// moved by an initial pose error), or objects loaded from files plus a table fitted to the first
-/// frames (`init`).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct SceneConfig {
-    /// A name from `pegs scenario list`; when set, `objects` and `table` are not used.
-    pub scenario: Option<String>,
-    /// Initial pose error of the scenario's tracked object: translation (m) and rotation about z (rad).
-    pub offset_position: Vec3,
-    pub offset_yaw: f32,
-    /// Objects loaded from files.
-    pub objects: Vec<ObjectConfig>,
-    /// Objects built from the first frames' depth and instance masks (`/<camera>/depth/image_raw`,
-    /// `/<camera>/mask/image_raw`).
-    pub rgbd_objects: Vec<RgbdObjectConfig>,
-    /// Fit the ground plane to the first depth frames (RANSAC) instead of `physics.ground`.
-    pub ground_from_depth: bool,
-    /// The table as thin-disk Gaussians on the ground plane, fitted to the first frames.
-    pub table: Option<TableConfig>,
-}
-
-/// An object found in the first RGB-D frames by its instance-mask label.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct RgbdObjectConfig {
-    pub name: String,
-    /// Its value in the mask images (1..=255).
-    pub label: u8,
-    /// Total mass, kg.
-    pub mass: f32,
-    pub particle_radius: f32,
-    /// A rope (a chain of particles along its centre line) instead of a rigid object.
-    pub rope: bool,
-    /// Rope only: stiffness of the bending constraints in (0, 1].
-    pub bending_stiffness: f32,
-}
-
-impl Default for RgbdObjectConfig {
-    fn default() -> Self {
-        Self {
-            name: String::new(),
-            label: 1,
-            mass: 0.2,
-            particle_radius: 0.005,
-            rope: false,
-            bending_stiffness: 0.3,
-        }
-    }
-}
-
-/// One tracked object loaded from a file.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct ObjectConfig {
-    pub name: String,
-    /// Object file in the embodied-gaussians JSON format (pose, Gaussians, particles).
-    pub embodied_gaussians: PathBuf,
-    /// Total mass, kg, shared equally by the particles.
-    pub mass: f32,
-    /// Colour band that picks this object out of the images: aligns it at the start and measures
-    /// the silhouette overlap of the tracking in `pegs replay`.
-    pub mask: Option<ColourMask>,
-    /// Before tracking, move the object on the table to best match `mask` in the first frames.
-    pub align_at_start: bool,
-    /// Adam steps fitting the object's colours to the inside of `mask` in the first frame, after
-    /// the alignment (the file's colours were captured under other lighting); 0 keeps them.
-    pub colour_fit_steps: u32,
-    /// Adam steps fitting the Gaussians' opacities and sizes to `mask` in the first frames, after
-    /// the table is fitted; 0 keeps them.
-    pub silhouette_fit_steps: u32,
-}
-
-impl Default for ObjectConfig {
-    fn default() -> Self {
-        Self {
-            name: String::new(),
-            embodied_gaussians: PathBuf::new(),
-            mass: 0.2,
-            mask: None,
-            align_at_start: true,
-            colour_fit_steps: 100,
-            silhouette_fit_steps: 100,
-        }
-    }
-}
-
-/// The table: a grid of flat Gaussians on the ground plane over a rectangle of world x, y.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct TableConfig {
-    pub min: Vec2,
-    pub max: Vec2,
-    /// Grid spacing, m.
-    pub spacing: f32,
-    /// Adam steps on the disks' colours, and frames used per camera: the first one and others
-    /// spread over the first `fit_span` seconds (0: the first frames).
-    pub fit_steps: u32,
-    pub fit_frames: u32,
-    pub fit_span: f32,
-    pub lr: f32,
-    /// The fit renders at this fraction of the camera resolution (the disks are coarser than pixels).
-    pub fit_resolution: f32,
-    /// The disks lie this far (m) below the ground plane: object Gaussians that reach into the
-    /// table (the soft bottom of a reconstruction) would otherwise be hidden by it, and the
-    /// photometric loss would lift the object to show them.
-    pub drop: f32,
-}
-
-impl Default for TableConfig {
-    fn default() -> Self {
-        Self {
-            min: Vec2::splat(-0.5),
-            max: Vec2::splat(0.5),
-            spacing: 0.01,
-            fit_steps: 500,
-            fit_frames: 3,
-            fit_span: 0.0,
-            lr: 0.02,
-            fit_resolution: 0.5,
-            drop: 0.01,
-        }
-    }
-}
-
-pub use crate::init::ColourMask;
-
-impl SceneConfig {
-    pub fn validate(&self) -> Result<()> {
-        for o in &self.objects {
-            if o.name.is_empty() || !(o.mass.is_finite() && o.mass > 0.0) {
-                bail!(
-                    "scene.objects: every object needs a name and a positive mass ('{}', {})",
-                    o.name,
-                    o.mass
-                );
-            }
-        }
-        for o in &self.rgbd_objects {
-            if o.name.is_empty()
-                || o.label == 0
-                || !(o.mass.is_finite() && o.mass > 0.0)
-                || !(o.particle_radius.is_finite() && o.particle_radius > 0.0)
-            {
-                bail!(
-                    "scene.rgbd_objects: '{}' needs a name, a label of 1 to 255, a positive mass and particle radius",
-                    o.name
-                );
-            }
-            if o.rope && !(o.bending_stiffness > 0.0 && o.bending_stiffness <= 1.0) {
-                bail!(
-                    "scene.rgbd_objects: rope '{}' needs bending_stiffness in (0, 1]",
-                    o.name
-                );
-            }
-        }
-        if let Some(t) = &self.table {
-            let cells = ((t.max - t.min) / t.spacing).max_element();
-            if !(t.spacing.is_finite() && t.spacing > 0.0)
-                || !(t.min.cmplt(t.max).all())
-                || !(cells <= 2000.0)
-            {
-                bail!(
-                    "scene.table: spacing must be positive, min below max, at most 2000 disks a side"
-                );
-            }
-            if !(t.fit_resolution > 0.0 && t.fit_resolution <= 1.0)
-                || !(t.lr.is_finite() && t.lr >= 0.0)
-                || !(t.fit_span.is_finite() && t.fit_span >= 0.0)
-                || !t.drop.is_finite()
-            {
-                bail!("scene.table: fit_resolution in (0, 1], lr and fit_span >= 0, drop finite");
-            }
-        }
-        Ok(())
-    }
-}
-
-/// Position-based dynamics (spec section 2, "Predict").
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct PhysicsConfig {
-    /// Length of one tick in seconds.
-    pub dt: f32,
-    pub substeps: u32,
-    /// Jacobi iterations per substep.
-    pub iterations: u32,
-    /// Gravity in m/s^2 (world z up). Zero it to ablate the gravity prior.
-    pub gravity: Vec3,
-    /// Velocities are multiplied by this after every tick (empirical, < 1; 1 disables it).
-    pub damping: f32,
-    /// Over-relaxation of averaged Jacobi corrections (1 = plain averaging).
-    pub relaxation: f32,
-    /// Fraction of the shape-matching correction applied per iteration (1 = rigid).
-    pub shape_stiffness: f32,
-    /// Weight (times its mass) in shape matching of a particle pinned by something immovable in
-    /// the current sweep: touching a kinematic or static body, or held by static friction on the
-    /// ground. The rigid body then moves with its contact points, as a rigid body does, instead of
-    /// the averaging over all its particles diluting the contact (1 disables it).
-    pub pin_weight: f32,
-    /// Gauss-Seidel sweeps over distance constraints (ropes) per Jacobi iteration, alternating
-    /// direction. A 50-link rope swinging from one end stretched by 2.0 % with 1 sweep, 0.5 % with 4.
-    pub distance_sweeps: u32,
-    pub ground: GroundConfig,
-    pub collisions: CollisionConfig,
-    /// Extra physical effects, named and parameterised (see `physics::effects`).
-    pub effects: Vec<Effect>,
-}
-
-impl Default for PhysicsConfig {
-    fn default() -> Self {
-        Self {
-            dt: 1.0 / 30.0,
-            substeps: 20,
-            iterations: 4,
-            gravity: Vec3::new(0.0, 0.0, -9.81),
-            damping: 0.99,
-            relaxation: 1.0,
-            shape_stiffness: 1.0,
-            pin_weight: 100.0,
-            distance_sweeps: 4,
-            ground: GroundConfig::default(),
-            collisions: CollisionConfig::default(),
-            effects: Vec::new(),
-        }
-    }
-}
-
-/// The ground plane `normal . x = height` with Coulomb friction.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct GroundConfig {
-    pub enabled: bool,
-    /// Unit normal pointing out of the table (normalised on load).
-    pub normal: Vec3,
-    /// Signed distance of the plane from the origin along `normal`, metres.
-    pub height: f32,
-    pub static_friction: f32,
-    pub kinetic_friction: f32,
-}
-
-impl Default for GroundConfig {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            normal: Vec3::Z,
-            height: 0.0,
-            static_friction: 0.5,
-            kinetic_friction: 0.4,
-        }
-    }
-}
-
-/// Particle-particle contacts between different shapes.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct CollisionConfig {
-    pub enabled: bool,
-    pub static_friction: f32,
-    pub kinetic_friction: f32,
-    /// Extra search distance for contact candidates, as a fraction of the largest particle radius.
-    pub margin: f32,
-}
-
-impl Default for CollisionConfig {
-    fn default() -> Self {
-        Self {
-            enabled: true,
-            static_friction: 0.3,
-            kinetic_friction: 0.25,
-            margin: 0.5,
-        }
-    }
-}
-
-impl PhysicsConfig {
-    /// Reject values that would make the solver meaningless instead of silently misbehaving.
-    pub fn validate(&self) -> Result<()> {
-        if !(self.dt.is_finite() && self.dt > 0.0) {
-            bail!(
-                "physics.dt must be a positive number of seconds, got {}",
-                self.dt
-            );
-        }
-        if self.substeps == 0 || self.iterations == 0 || self.distance_sweeps == 0 {
-            bail!(
-                "physics.substeps, physics.iterations and physics.distance_sweeps must be at least 1"
-            );
-        }
-        if !self.gravity.is_finite() {
-            bail!("physics.gravity must be finite");
-        }
-        if !(0.0..=1.0).contains(&self.damping) {
-            bail!("physics.damping must be in [0, 1], got {}", self.damping);
-        }
-        if !(self.relaxation > 0.0 && self.relaxation < 2.0) {
-            bail!(
-                "physics.relaxation must be in (0, 2), got {}",
-                self.relaxation
-            );
-        }
-        if !(self.shape_stiffness > 0.0 && self.shape_stiffness <= 1.0) {
-            bail!(
-                "physics.shape_stiffness must be in (0, 1], got {}",
-                self.shape_stiffness
-            );
-        }
-        if !(self.pin_weight.is_finite() && self.pin_weight >= 1.0) {
-            bail!("physics.pin_weight must be >= 1, got {}", self.pin_weight);
-        }
-        if self.ground.normal.length() < 1e-6 || !self.ground.normal.is_finite() {
-            bail!("physics.ground.normal must be a non-zero vector");
-        }
-        for (name, mu) in [
-            ("ground.static_friction", self.ground.static_friction),
-            ("ground.kinetic_friction", self.ground.kinetic_friction),
-            (
-                "collisions.static_friction",
-                self.collisions.static_friction,
-            ),
-            (
-                "collisions.kinetic_friction",
-                self.collisions.kinetic_friction,
-            ),
-        ] {
-            if !(mu.is_finite() && mu >= 0.0) {
-                bail!("physics.{name} must be >= 0, got {mu}");
-            }
-        }
-        for e in &self.effects {
-            e.validate()?;
-        }
-        Ok(())
-    }
+    pub node: NodeConfig,
 }
 
 impl Config {
@@ -380,6 +52,16 @@ impl Config {
         self.scene.validate()?;
         self.node.validate()?;
         Ok(self)
+    }
+
+    /// What initialisation reads: the scene section, the robot, the ground and the renderer.
+    pub fn init(&self) -> crate::init::Settings<'_> {
+        crate::init::Settings {
+            scene: &self.scene,
+            robot: &self.robot,
+            ground: &self.physics.ground,
+            render: &self.render,
+        }
     }
 
     /// YAML in the ROS 2 parameter-file layout under the node name `pegs`.
@@ -523,6 +205,7 @@ impl ModelFile {
 #[cfg(test)]
 mod model_file_tests {
     use super::*;
+    use crate::physics::effects::ViscousDrag;
 
     #[test]
     fn a_model_file_round_trips_and_adds_its_effects() {
@@ -531,10 +214,10 @@ mod model_file_tests {
         let path = dir.join("model.yaml");
         let model = ModelFile {
             source: "test".into(),
-            effects: vec![Effect::ViscousDrag {
+            effects: vec![Effect::ViscousDrag(ViscousDrag {
                 object: Some("box".into()),
                 coefficient: 0.9,
-            }],
+            })],
         };
         model.save(&path).unwrap();
         assert_eq!(ModelFile::load(&path).unwrap(), model);

@@ -5,10 +5,10 @@
 //! it, diagnosed (locate, name, refit) and judged against the hidden truth (`story`).
 
 use crate::config::Config;
+use crate::evaluate::concealed_table::{self, Verdict};
 use crate::physics::Solver;
 use crate::scenario::concealed;
-use crate::scenario::concealed_table::{self, Verdict};
-use crate::scene::builtin;
+use crate::scene;
 use crate::trajectory::TrajectoryWriter;
 use anyhow::{Context, Result};
 use serde::Serialize;
@@ -60,7 +60,7 @@ fn snapshot(world: &crate::world::World, path: &Path) -> Result<()> {
 pub fn run(config: &Config, out_dir: &Path, seconds: f64) -> Result<DemoSummary> {
     std::fs::create_dir_all(out_dir)
         .with_context(|| format!("cannot create {}", out_dir.display()))?;
-    let mut scene = builtin::tabletop()?;
+    let mut scene = scene::tabletop()?;
     let mut solver = Solver::new(config.physics.clone(), &scene.world)?;
     let mut writer = TrajectoryWriter::create(&out_dir.join("trajectory.csv"))?;
     let dynamic: Vec<u32> = scene.world.shapes.dynamic_ids().collect();

@@ -151,23 +151,54 @@ impl InputLog {
 /// The data a tick uses from one camera.
 #[derive(Clone, Debug)]
 pub struct TickImage {
+    /// The camera's index in `Inputs::cameras`.
+    pub index: usize,
     pub name: String,
     pub stamp: f64,
     pub camera: Camera,
     pub pixels: Arc<Vec<Vec3>>,
 }
 
-/// What was available for one tick: usable images, and every camera's image age (None: never
-/// received an image).
+/// What one tick consumes: the time it ends at, the usable images, every camera's image age
+/// (None: never received an image), and the robot's joint trajectory.
 #[derive(Clone, Debug, Default)]
 pub struct TickInputs {
+    /// When the tick ends, s.
+    pub time: f64,
     pub images: Vec<TickImage>,
     pub ages: Vec<(String, Option<f64>)>,
     /// Cameras whose newest image is older than the limit.
     pub stale: Vec<String>,
+    /// The joint trajectory that drives the robot through the tick (recent samples, extended a
+    /// little past the last one); None without a robot or before the first joint state.
+    pub trajectory: Option<JointTrajectory>,
+    /// Joint-state samples accepted since the previous tick: `(stamp, positions)`, in order.
+    pub joint_samples: Vec<(f64, Vec<f64>)>,
 }
 
 impl TickInputs {
+    /// A tick at `time` with images taken by `cameras` at that time and no joint states
+    /// (synthetic scenes, tests, benchmarks).
+    pub fn with_images(time: f64, cameras: &[Camera], images: Vec<Vec<Vec3>>) -> Self {
+        let images = cameras
+            .iter()
+            .zip(images)
+            .enumerate()
+            .map(|(index, (camera, pixels))| TickImage {
+                index,
+                name: format!("camera{index}"),
+                stamp: time,
+                camera: *camera,
+                pixels: Arc::new(pixels),
+            })
+            .collect();
+        Self {
+            time,
+            images,
+            ..Default::default()
+        }
+    }
+
     pub fn views(&self) -> Vec<View<'_>> {
         self.images
             .iter()
@@ -184,6 +215,8 @@ impl TickInputs {
 struct Joints {
     tracker: JointStateTracker,
     trajectory: JointTrajectory,
+    /// Samples accepted since the last `tick_inputs`.
+    fresh: Vec<(f64, Vec<f64>)>,
     order: StampOrder,
 }
 
@@ -219,6 +252,7 @@ impl Inputs {
             Joints {
                 tracker,
                 trajectory: JointTrajectory::default(),
+                fresh: Vec::new(),
                 order: StampOrder::default(),
             }
         });
@@ -325,9 +359,12 @@ impl Inputs {
             ));
             self.log.unknown_joints.insert(name);
         }
-        joints
+        if joints
             .trajectory
-            .push(stamp, joints.tracker.positions.clone());
+            .push(stamp, joints.tracker.positions.clone())
+        {
+            joints.fresh.push((stamp, joints.tracker.positions.clone()));
+        }
         if !report.rejected_non_finite.is_empty() {
             let why = Rejection::NonFinite(report.rejected_non_finite);
             self.refuse(format!("{what} (other joints used)"), why);
@@ -338,7 +375,7 @@ impl Inputs {
     /// The robot trajectory to drive the tick ending at `t`: recent samples, extended linearly a
     /// little past the last one so a tick is not driven by a stale hold. None without a robot or
     /// before the first joint state.
-    pub fn trajectory_for(&mut self, t: f64) -> Option<JointTrajectory> {
+    fn trajectory_for(&mut self, t: f64) -> Option<JointTrajectory> {
         let joints = self.joints.as_mut()?;
         if joints.trajectory.is_empty() {
             return None;
@@ -348,14 +385,25 @@ impl Inputs {
         Some(joints.trajectory.extended(t, MAX_JOINT_EXTRAPOLATION_S))
     }
 
-    /// Images for the tick at `t`: every camera's newest image no older than `max_age`.
-    pub fn tick_inputs(&self, t: f64, max_age: f64) -> TickInputs {
-        let mut out = TickInputs::default();
-        for feed in &self.cameras {
+    /// What the tick ending at `t` consumes: every camera's newest image no older than `max_age`,
+    /// the joint trajectory, and the joint samples accepted since the last call.
+    pub fn tick_inputs(&mut self, t: f64, max_age: f64) -> TickInputs {
+        let mut out = TickInputs {
+            time: t,
+            trajectory: self.trajectory_for(t),
+            joint_samples: self
+                .joints
+                .as_mut()
+                .map(|j| std::mem::take(&mut j.fresh))
+                .unwrap_or_default(),
+            ..Default::default()
+        };
+        for (index, feed) in self.cameras.iter().enumerate() {
             let age = feed.latest.as_ref().map(|(stamp, _)| t - stamp);
             out.ages.push((feed.name.clone(), age));
             match (&feed.latest, age) {
                 (Some((stamp, pixels)), Some(a)) if a <= max_age => out.images.push(TickImage {
+                    index,
                     name: feed.name.clone(),
                     stamp: *stamp,
                     camera: feed.camera,
@@ -408,6 +456,61 @@ pub fn decode_image(img: &Image, camera: &Camera) -> Result<Vec<Vec3>, String> {
         }
     }
     Ok(out)
+}
+
+/// Metres from a 32FC1 depth image of the camera's size (non-finite or negative values become 0,
+/// unknown).
+pub fn decode_depth(img: &Image, camera: &Camera) -> Result<Vec<f32>, String> {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    if img.width != camera.width
+        || img.height != camera.height
+        || img.encoding != "32FC1"
+        || img.is_bigendian != 0
+        || (img.step as usize) < 4 * w
+        || img.data.len() < img.step as usize * h
+    {
+        return Err(format!(
+            "depth must be little-endian 32FC1 of {w}x{h}, got {} {}x{}",
+            img.encoding, img.width, img.height
+        ));
+    }
+    let mut out = Vec::with_capacity(w * h);
+    for y in 0..h {
+        for x in 0..w {
+            let at = y * img.step as usize + 4 * x;
+            let d = f32::from_le_bytes([
+                img.data[at],
+                img.data[at + 1],
+                img.data[at + 2],
+                img.data[at + 3],
+            ]);
+            out.push(if d.is_finite() && d > 0.0 { d } else { 0.0 });
+        }
+    }
+    Ok(out)
+}
+
+/// Labels from a mono8 instance-mask image of the camera's size.
+pub fn decode_labels(img: &Image, camera: &Camera) -> Result<Vec<u8>, String> {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    if img.width != camera.width
+        || img.height != camera.height
+        || img.encoding != "mono8"
+        || (img.step as usize) < w
+        || img.data.len() < img.step as usize * h
+    {
+        return Err(format!(
+            "instance masks must be mono8 of {w}x{h}, got {} {}x{}",
+            img.encoding, img.width, img.height
+        ));
+    }
+    Ok((0..h)
+        .flat_map(|y| {
+            img.data[y * img.step as usize..y * img.step as usize + w]
+                .iter()
+                .copied()
+        })
+        .collect())
 }
 
 #[cfg(test)]
@@ -634,11 +737,16 @@ mod tests {
             inputs.offer_joint_state(&joint_state(0.05, &["j1"], &[9.0]), 0.2),
             Err(Rejection::OutOfOrder { .. })
         ));
-        let trajectory = inputs.trajectory_for(0.13).unwrap();
+        let tick = inputs.tick_inputs(0.13, 0.5);
+        let trajectory = tick.trajectory.unwrap();
         // Linear extension of the last two samples (slope 1 rad/s) for 30 ms.
         assert!((trajectory.at(0.13).unwrap()[0] - 0.13).abs() < 1e-9);
+        // The accepted samples reach the tick once, as recorded (not the extension).
+        assert_eq!(tick.joint_samples, vec![(0.0, vec![0.0]), (0.1, vec![0.1])]);
         // Beyond the extrapolation limit the extension holds.
-        let far = inputs.trajectory_for(1.0).unwrap();
-        assert!((far.at(1.0).unwrap()[0] - (0.1 + MAX_JOINT_EXTRAPOLATION_S)).abs() < 1e-9);
+        let far = inputs.tick_inputs(1.0, 0.5);
+        let held = far.trajectory.unwrap().at(1.0).unwrap()[0];
+        assert!((held - (0.1 + MAX_JOINT_EXTRAPOLATION_S)).abs() < 1e-9);
+        assert!(far.joint_samples.is_empty(), "each sample reaches one tick");
     }
 }

@@ -5,18 +5,19 @@
 //! The modules follow the loop: `world` (plain data) -> `physics` (predict) -> ... Scenes are
 //! built in `scene`; `config` holds every number; `demo` and `bench` are the command-line jobs.
 
-pub mod ablation;
 pub mod bench;
 pub mod config;
 pub mod correct;
 pub mod demo;
 pub mod diagnose;
+pub mod evaluate;
 pub mod import;
 pub mod init;
 pub mod inputs;
 pub mod math;
 pub mod msgs;
 pub mod physics;
+pub mod plot;
 pub mod record;
 pub mod render;
 pub mod replay;
@@ -24,6 +25,8 @@ pub mod robot;
 pub mod ros;
 pub mod scenario;
 pub mod scene;
+pub mod topics;
+pub mod trace;
 pub mod tracker;
 pub mod trajectory;
 pub mod world;

@@ -416,10 +416,15 @@ fn main() -> Result<()> {
                     readme,
                 },
         } => {
-            let table = pegs::scenario::table::run(&out, width, height)?;
+            let table = pegs::evaluate::scenario_table::run(&out, width, height)?;
             println!("{table}");
             if let Some(path) = readme {
-                pegs::scenario::table::write_into(&path, &table)?;
+                pegs::evaluate::write_between(
+                    &path,
+                    pegs::evaluate::scenario_table::START,
+                    pegs::evaluate::scenario_table::END,
+                    &table,
+                )?;
                 println!("updated {}", path.display());
             }
         }
@@ -442,13 +447,13 @@ fn main() -> Result<()> {
                 scenarios
             };
             let (verdicts, table) =
-                pegs::scenario::concealed_table::run(&out, &names, width, height, true)?;
+                pegs::evaluate::concealed_table::run(&out, &names, width, height, true)?;
             println!("{table}");
             if let Some(path) = readme {
-                pegs::scenario::table::write_between(
+                pegs::evaluate::write_between(
                     &path,
-                    pegs::scenario::concealed_table::START,
-                    pegs::scenario::concealed_table::END,
+                    pegs::evaluate::concealed_table::START,
+                    pegs::evaluate::concealed_table::END,
                     &table,
                 )?;
                 println!("updated {}", path.display());
@@ -507,7 +512,7 @@ fn main() -> Result<()> {
             iterations,
             readme,
         } => {
-            let opts = pegs::ablation::SweepOptions {
+            let opts = pegs::evaluate::ablation::SweepOptions {
                 scenarios,
                 base,
                 seconds,
@@ -517,15 +522,15 @@ fn main() -> Result<()> {
                 learning_rates,
                 iterations,
             };
-            let rows = pegs::ablation::run(&opts, &out)?;
-            let table = pegs::ablation::summary_table(&rows);
+            let rows = pegs::evaluate::ablation::run(&opts, &out)?;
+            let table = pegs::evaluate::ablation::summary_table(&rows);
             println!("{table}");
             println!("plots and runs in {}", out.display());
             if let Some(path) = readme {
-                pegs::scenario::table::write_between(
+                pegs::evaluate::write_between(
                     &path,
-                    pegs::ablation::START,
-                    pegs::ablation::END,
+                    pegs::evaluate::ablation::START,
+                    pegs::evaluate::ablation::END,
                     &table,
                 )?;
                 println!("updated {}", path.display());
@@ -607,7 +612,7 @@ fn main() -> Result<()> {
             println!("wrote {0}/objects.csv and {0}/metrics.json", out.display());
             if let Some(path) = readme {
                 use pegs::replay::silhouette;
-                pegs::scenario::table::write_between(
+                pegs::evaluate::write_between(
                     &path,
                     silhouette::TABLE_START,
                     silhouette::TABLE_END,

@@ -1,6 +1,8 @@
 //! Object trajectories as CSV, one row per dynamic object per tick, world frame, metres, ROS
-//! quaternion order: `t,object,x,y,z,qx,qy,qz,qw`. The same layout as `pegs replay`'s objects.csv.
+//! quaternion order: `t,object,x,y,z,qx,qy,qz,qw`. The same layout as `pegs replay`'s objects.csv
+//! (where the writer observes the ticks); particles of deformable objects likewise.
 
+use crate::tracker::{Observer, Tick, Tracker};
 use crate::world::World;
 use anyhow::{Context, Result};
 use std::io::Write;
@@ -42,8 +44,19 @@ impl TrajectoryWriter {
         Ok(())
     }
 
-    pub fn finish(mut self) -> Result<()> {
+    pub fn finish(&mut self) -> Result<()> {
         self.out.flush().context("cannot write trajectory")
+    }
+}
+
+/// As an observer: the start state, then the state after every tick.
+impl Observer for TrajectoryWriter {
+    fn start(&mut self, tracker: &Tracker) -> Result<()> {
+        self.record(tracker.world())
+    }
+
+    fn tick(&mut self, tick: &Tick) -> Result<()> {
+        self.record(tick.tracker.world())
     }
 }
 

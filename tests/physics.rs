@@ -2,11 +2,15 @@
 //! corresponding piece of physics is missing or wrong. Run with --release (tests/run_all.sh).
 
 use glam::{Quat, Vec3};
-use pegs::config::PhysicsConfig;
 use pegs::math::Pose;
+use pegs::physics::PhysicsConfig;
+use pegs::physics::effects::{
+    CenterOfMassOffset, ConstantForce, FrictionPatch, MassScale, Restitution, Spring, TableTilt,
+    ViscousDrag,
+};
 use pegs::physics::{Effect, Solver};
-use pegs::scene::{WorldBuilder, box_lattice, cylinder_lattice, t_block_lattice};
 use pegs::world::{ShapeId, World};
+use pegs::world::{WorldBuilder, box_lattice, cylinder_lattice, t_block_lattice};
 
 const R: f32 = 0.005;
 const SPACING: f32 = 2.0 * R;
@@ -616,14 +620,14 @@ fn constant_force_accelerates_at_f_over_m_and_mass_scale_halves_it() {
         let (mut w, s, mass) = box_world();
         let mut config = frictionless();
         config.effects = vec![
-            Effect::ConstantForce {
+            Effect::ConstantForce(ConstantForce {
                 object: Some("box".into()),
                 force: Vec3::new(0.5, 0.0, 0.0),
-            },
-            Effect::MassScale {
+            }),
+            Effect::MassScale(MassScale {
                 object: "box".into(),
                 factor,
-            },
+            }),
         ];
         let mut solver = Solver::new(config, &w).unwrap();
         run(&mut w, &mut solver, 30, |_| {});
@@ -646,10 +650,10 @@ fn tilted_table_holds_a_box_below_the_friction_angle_and_slides_it_above() {
     for (angle, should_slide) in [(0.8 * mu_s.atan(), false), (1.3 * mu_s.atan(), true)] {
         let (mut w, s, _) = box_world();
         let mut c = config.clone();
-        c.effects = vec![Effect::TableTilt {
+        c.effects = vec![Effect::TableTilt(TableTilt {
             angle,
             azimuth: 0.0,
-        }];
+        })];
         let mut solver = Solver::new(c, &w).unwrap();
         run(&mut w, &mut solver, 30, |_| {});
         let v = w.shape_velocity(s).x;
@@ -674,7 +678,7 @@ fn spring_to_anchor_oscillates_with_the_mass_spring_period() {
     let stiffness = 2.0;
     let mut config = frictionless();
     let rest_height = resting_height(0.025);
-    config.effects = vec![Effect::Spring {
+    config.effects = vec![Effect::Spring(Spring {
         object: "box".into(),
         point: Vec3::ZERO,
         anchor: Vec3::new(-0.05, 0.0, rest_height),
@@ -682,7 +686,7 @@ fn spring_to_anchor_oscillates_with_the_mass_spring_period() {
         rest_length: 0.0,
         damping: 0.0,
         tether: false,
-    }];
+    })];
     let mut solver = Solver::new(config, &w).unwrap();
     // Find the first return to maximum x after release from x = 0 (amplitude 5 cm about -0.05).
     let mut xs = Vec::new();
@@ -704,10 +708,10 @@ fn viscous_drag_decays_velocity_exponentially() {
     let (mut w, s, mass) = box_world();
     let b = 0.2;
     let mut config = frictionless();
-    config.effects = vec![Effect::ViscousDrag {
+    config.effects = vec![Effect::ViscousDrag(ViscousDrag {
         object: None,
         coefficient: b,
-    }];
+    })];
     let mut solver = Solver::new(config, &w).unwrap();
     for i in w.shapes.range(s) {
         w.particles.velocity[i].x = 1.0;
@@ -735,9 +739,11 @@ fn rebound_height(drop: f32, restitution: Option<f32>) -> f32 {
     let mut w = b.build();
     let mut config = undamped();
     config.effects = restitution
-        .map(|e| Effect::Restitution {
-            object: Some("box".into()),
-            coefficient: e,
+        .map(|e| {
+            Effect::Restitution(Restitution {
+                object: Some("box".into()),
+                coefficient: e,
+            })
         })
         .into_iter()
         .collect();
@@ -778,12 +784,12 @@ fn restitution_bounces_a_dropped_box_to_e_squared_of_its_height() {
 fn friction_patch_stops_a_box_sooner_than_the_plain_table() {
     let plain = slide_distance(1.0, undamped());
     let mut patchy = undamped();
-    patchy.effects = vec![Effect::FrictionPatch {
+    patchy.effects = vec![Effect::FrictionPatch(FrictionPatch {
         center: glam::Vec2::new(0.5, 0.0),
         half_size: glam::Vec2::splat(0.5),
         static_friction: 1.0,
         kinetic_friction: 0.8,
-    }];
+    })];
     let rough = slide_distance(1.0, patchy);
     let want = 1.0 / (2.0 * 0.8 * G);
     assert!(
@@ -818,10 +824,10 @@ fn center_of_mass_offset_tips_a_balanced_plank_towards_the_heavy_side() {
         );
         let mut w = b.build();
         let config = PhysicsConfig {
-            effects: vec![Effect::CenterOfMassOffset {
+            effects: vec![Effect::CenterOfMassOffset(CenterOfMassOffset {
                 object: "plank".into(),
                 offset: Vec3::new(offset_x, 0.0, 0.0),
-            }],
+            })],
             ..PhysicsConfig::default()
         };
         let mut solver = Solver::new(config, &w).unwrap();
@@ -887,7 +893,7 @@ fn non_finite_inputs_are_rejected_and_counted_without_corrupting_the_world() {
 #[test]
 fn stepping_is_deterministic() {
     let run_scene = || {
-        let mut scene = pegs::scene::builtin::tabletop().unwrap();
+        let mut scene = pegs::scene::tabletop().unwrap();
         let mut solver = Solver::new(PhysicsConfig::default(), &scene.world).unwrap();
         for _ in 0..45 {
             scene.advance(&mut solver).unwrap();

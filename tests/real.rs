@@ -53,7 +53,7 @@ fn on_mask(camera: &Camera, image: &[Vec3], points: &[Vec3], mask: &ColourMask) 
 
 /// The object's Gaussians at its file pose, coloured by `colour_of`.
 fn block_cloud(
-    object: &pegs::init::ObjectModel,
+    object: &pegs::world::ObjectModel,
     colour_of: impl Fn(usize) -> Vec3,
 ) -> GaussianCloud {
     let mut cloud = GaussianCloud::default();
@@ -72,7 +72,7 @@ fn block_cloud(
 }
 
 fn render_block(
-    object: &pegs::init::ObjectModel,
+    object: &pegs::world::ObjectModel,
     camera: &Camera,
     colour_of: impl Fn(usize) -> Vec3,
 ) -> Vec<Vec3> {
@@ -85,7 +85,7 @@ fn render_block(
 fn importer_conventions_put_the_block_on_its_orange_pixels() {
     let cams = eg::load_cameras(&data()).expect("cameras of ../shared/data/pusht_real");
     assert_eq!(cams.len(), 3);
-    let block = eg::load_object(&data().join("tblock.json")).unwrap();
+    let block = pegs::init::object_file::load_object(&data().join("tblock.json")).unwrap();
     // The file pose is where the block is at the end of the recording (on its outline).
     let world: Vec<Vec3> = block
         .gaussians
@@ -103,7 +103,9 @@ fn importer_conventions_put_the_block_on_its_orange_pixels() {
         // OpenGL matrix used as if it were an optical frame: the block is not where the image has it.
         let raw = rows(&data().join("cameras.json"), &cam.serial);
         let unflipped = Camera {
-            world_to_camera: eg::pose_from_rows(&raw).unwrap().inverse(),
+            world_to_camera: pegs::init::object_file::pose_from_rows(&raw)
+                .unwrap()
+                .inverse(),
             ..cam.camera
         };
         let f_unflipped = on_mask(&unflipped, &last, &world, &mask);
@@ -169,7 +171,10 @@ fn importer_conventions_put_the_block_on_its_orange_pixels() {
                 .map(|v| v.as_f64().unwrap())
                 .eq([1.0, 0.0, 0.0, 0.0]))
     );
-    assert!(eg::quat_from_wxyz([1.0, 0.0, 0.0, 0.0]).angle_between(Quat::IDENTITY) < 1e-6);
+    assert!(
+        pegs::init::object_file::quat_from_wxyz([1.0, 0.0, 0.0, 0.0]).angle_between(Quat::IDENTITY)
+            < 1e-6
+    );
     assert!(
         Quat::from_array([1.0, 0.0, 0.0, 0.0]).angle_between(Quat::IDENTITY) > 3.0,
         "read as x,y,z,w it would be a half turn"
@@ -307,7 +312,7 @@ fn the_file_pose_silhouette_overlaps_the_last_frames_mask() {
     // The whole chain (intrinsics, OpenGL extrinsics, object pose and Gaussians) against the
     // images: at the end of the recording the block rests near its file pose.
     let cams = eg::load_cameras(&data()).unwrap();
-    let block = eg::load_object(&data().join("tblock.json")).unwrap();
+    let block = pegs::init::object_file::load_object(&data().join("tblock.json")).unwrap();
     let mask = eg::orange_mask();
     let mut ious = Vec::new();
     for cam in &cams {

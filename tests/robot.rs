@@ -3,14 +3,14 @@
 //! pushing motion replayed from joint states, and bad input.
 
 use glam::{DAffine3, DMat3, DVec3, Vec3};
-use pegs::config::PhysicsConfig;
 use pegs::math::Pose;
+use pegs::physics::PhysicsConfig;
 use pegs::physics::Solver;
 use pegs::robot::{
     GeometrySource, JointStateTracker, JointTrajectory, PackagePaths, RobotConfig, RobotInWorld,
     RobotModel,
 };
-use pegs::scene::{WorldBuilder, box_lattice};
+use pegs::world::{WorldBuilder, box_lattice};
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 use std::path::{Path, PathBuf};
 

@@ -4,7 +4,7 @@
 
 use glam::{Quat, Vec3};
 use pegs::config::Config;
-use pegs::correct::View;
+use pegs::inputs::TickInputs;
 use pegs::math::Pose;
 use pegs::scenario;
 use pegs::tracker::Tracker;
@@ -48,26 +48,20 @@ fn track_with(
     .unwrap();
     let mut errors = Vec::new();
     for tick in 0..ticks {
-        truth.tick(&[]).unwrap();
+        truth.predict().unwrap();
         let images = scenario::observe(
-            &truth.scene.world,
+            truth.world(),
             &cameras,
             0.01,
             1.0 + 0.02 * (tick as f32 * 0.1).sin(),
             tick,
         );
-        let views: Vec<View> = cameras
-            .iter()
-            .zip(&images)
-            .map(|(c, img)| View {
-                camera: *c,
-                image: img,
-            })
-            .collect();
-        model.tick(&views).unwrap();
+        model
+            .tick(&TickInputs::with_images(truth.time(), &cameras, images))
+            .unwrap();
         let e: f32 = objects
             .iter()
-            .map(|o| scenario::tracking_error(&truth.scene.world, &model.scene.world, o).unwrap())
+            .map(|o| scenario::tracking_error(truth.world(), model.world(), o).unwrap())
             .sum();
         errors.push(e / objects.len() as f32);
     }
@@ -220,9 +214,9 @@ fn a_box_hidden_behind_the_arm_is_recovered_after_it_reappears() {
     )
     .unwrap();
     for tick in 1..=100 {
-        truth.tick(&[]).unwrap();
+        truth.predict().unwrap();
         if tick % 10 == 0 {
-            let seen = scenario::visible_fraction(&truth.scene.world, &cameras, "box");
+            let seen = scenario::visible_fraction(truth.world(), &cameras, "box");
             let most = seen.iter().copied().fold(0.0f32, f32::max);
             if (30..=69).contains(&tick) {
                 assert!(

@@ -561,7 +561,7 @@ mod tests {
     use super::*;
     use crate::math::Pose;
     use crate::render::cpu::CpuRenderer;
-    use crate::scene::{WorldBuilder, box_lattice};
+    use crate::world::{WorldBuilder, box_lattice};
 
     #[test]
     fn spreading_keeps_the_total_force_and_torque_and_loads_every_particle() {

@@ -3,7 +3,7 @@
 //! Rows of the regression are `[f_x, f_y, tau_z / L]` per sample, `L` a length that makes torques
 //! comparable to forces.
 
-use super::Sample;
+use crate::trace::Sample;
 use glam::Vec3;
 
 /// Length scale of the torque rows, m (about an object's size).
@@ -39,6 +39,11 @@ pub const ALL: [Candidate; 6] = [
 ];
 
 impl Candidate {
+    /// The candidate called `name`.
+    pub fn from_name(name: &str) -> Option<Candidate> {
+        ALL.into_iter().find(|c| c.name() == name)
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Candidate::ViscousDrag => "viscous_drag",

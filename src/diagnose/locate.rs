@@ -5,9 +5,9 @@
 //! Once an effect is named, `explained` keeps the mismatches that effect removes: where the
 //! missing physics acts, apart from misses no effect explains (such as robot contacts).
 
-use super::Sample;
-use super::trace::{Prediction, Trace};
-use crate::config::PhysicsConfig;
+use crate::physics::PhysicsConfig;
+use crate::trace::Sample;
+use crate::trace::{Prediction, Trace};
 use crate::world::ShapeId;
 use anyhow::Result;
 use glam::Vec2;
@@ -292,7 +292,7 @@ fn window(
 mod tests {
     use super::*;
     use crate::math::Pose;
-    use crate::scene::{WorldBuilder, box_lattice};
+    use crate::world::{WorldBuilder, box_lattice};
     use glam::Vec3;
 
     /// A box at rest is set sliding at tick 40 by something the physics does not know (its
@@ -318,7 +318,8 @@ mod tests {
             base: world.clone(),
             physics: physics.clone(),
             robot: None,
-            states: vec![crate::diagnose::trace::State::of(&world)],
+            states: vec![crate::trace::State::of(&world)],
+            samples: Vec::new(),
         };
         let mut solver = crate::physics::Solver::new(physics.clone(), &world).unwrap();
         for k in 0..70 {
@@ -329,7 +330,7 @@ mod tests {
                     .for_each(|i| world.particles.velocity[i] = Vec3::new(0.3, 0.0, 0.0));
             }
             solver.step(&mut world).unwrap();
-            trace.states.push(crate::diagnose::trace::State::of(&world));
+            trace.states.push(crate::trace::State::of(&world));
         }
         let horizon = (HORIZON / trace.dt()).round() as usize;
         let flag = |starts: Vec<usize>| {

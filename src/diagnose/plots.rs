@@ -1,11 +1,11 @@
 //! The diagnosis' plots (PNG): the residual over time with the mismatch windows, the residual
 //! against the feature the named effect depends on, and open-loop paths before and after.
 
-use super::Sample;
 use super::locate::Located;
-use super::refit::{Family, Setting};
-use super::trace::{Prediction, Trace};
-use crate::ablation::plot::{FONT, ensure_font};
+use crate::physics::effects::{Family, Feature, FitSetting};
+use crate::plot::{FONT, ensure_font};
+use crate::trace::Sample;
+use crate::trace::{Prediction, Trace};
 use crate::world::ShapeId;
 use anyhow::{Result, anyhow};
 use glam::{Vec2, Vec3};
@@ -154,7 +154,7 @@ pub fn residual_over_time(
 
 /// The feature a family's force depends on and the corrective force along that family's
 /// direction, per sample: (feature, force).
-fn feature(family: Option<Family>, setting: &Setting, s: &Sample) -> (f64, f64) {
+fn feature(feature: Feature, setting: &FitSetting, s: &Sample) -> (f64, f64) {
     let v = Vec2::new(s.velocity.x, s.velocity.y);
     let f = Vec2::new(s.force.x, s.force.y);
     let against_motion = if v.length() > 1e-4 {
@@ -162,12 +162,12 @@ fn feature(family: Option<Family>, setting: &Setting, s: &Sample) -> (f64, f64) 
     } else {
         0.0
     };
-    match family {
-        Some(Family::ConstantForce) => (
+    match feature {
+        Feature::SpeedAlongDirection => (
             v.length() as f64,
             setting.force_direction.map_or(0.0, |d| f.dot(d.truncate())) as f64,
         ),
-        Some(Family::Spring) => {
+        Feature::DistanceFromAnchor => {
             let a = setting.anchor.unwrap_or(Vec3::ZERO).truncate();
             let d = Vec2::new(s.position.x, s.position.y) - a;
             (
@@ -179,7 +179,7 @@ fn feature(family: Option<Family>, setting: &Setting, s: &Sample) -> (f64, f64) 
                 },
             )
         }
-        Some(Family::MassScale) => (
+        Feature::Acceleration => (
             s.acceleration.truncate().length() as f64,
             if s.acceleration.length() > 1e-6 {
                 -f.dot(s.acceleration.truncate().normalize()) as f64
@@ -187,39 +187,35 @@ fn feature(family: Option<Family>, setting: &Setting, s: &Sample) -> (f64, f64) 
                 0.0
             },
         ),
-        Some(Family::AngularDamping | Family::CenterOfMass(_)) => {
-            (s.angular_velocity.z as f64, s.torque.z as f64)
-        }
+        Feature::AngularVelocity => (s.angular_velocity.z as f64, s.torque.z as f64),
         // Where the object is along the direction it slid (the longer side of the slid-over area).
-        Some(Family::FrictionPatch) => {
+        Feature::PositionAlongSlide => {
             let axis = setting
                 .region
                 .map_or(0, |(lo, hi)| if hi.x - lo.x >= hi.y - lo.y { 0 } else { 1 });
             (s.position[axis] as f64, against_motion as f64)
         }
-        _ => (v.length() as f64, against_motion as f64),
+        Feature::Speed => (v.length() as f64, against_motion as f64),
     }
 }
 
-fn feature_labels(family: Option<Family>) -> (&'static str, &'static str) {
-    match family {
-        Some(Family::ConstantForce) => (
+fn feature_labels(feature: Feature) -> (&'static str, &'static str) {
+    match feature {
+        Feature::SpeedAlongDirection => (
             "speed (m/s)",
             "corrective force along the fitted direction (N)",
         ),
-        Some(Family::Spring) => (
+        Feature::DistanceFromAnchor => (
             "distance from the fitted anchor (m)",
             "corrective force towards the anchor (N)",
         ),
-        Some(Family::MassScale) => ("acceleration (m/s^2)", "corrective force against it (N)"),
-        Some(Family::AngularDamping | Family::CenterOfMass(_)) => {
-            ("angular velocity (rad/s)", "corrective torque (N m)")
-        }
-        Some(Family::FrictionPatch) => (
+        Feature::Acceleration => ("acceleration (m/s^2)", "corrective force against it (N)"),
+        Feature::AngularVelocity => ("angular velocity (rad/s)", "corrective torque (N m)"),
+        Feature::PositionAlongSlide => (
             "position along the slide, world x or y (m)",
             "corrective force against the motion (N)",
         ),
-        _ => ("speed (m/s)", "corrective force against the motion (N)"),
+        Feature::Speed => ("speed (m/s)", "corrective force against the motion (N)"),
     }
 }
 
@@ -227,19 +223,20 @@ fn feature_labels(family: Option<Family>) -> (&'static str, &'static str) {
 pub fn residual_vs_feature(
     path: &Path,
     samples: &[Sample],
-    family: Option<Family>,
-    setting: &Setting,
+    family: Option<&dyn Family>,
+    setting: &FitSetting,
 ) -> Result<()> {
+    let kind = family.map_or(Feature::Speed, |f| f.feature());
     ensure_font();
     let e = err(path);
     let points: Vec<(f64, f64)> = samples
         .iter()
         .filter(|s| !s.touching_robot)
-        .map(|s| feature(family, setting, s))
+        .map(|s| feature(kind, setting, s))
         .collect();
     let (x_lo, x_hi) = span(points.iter().map(|p| p.0));
     let (y_lo, y_hi) = span(points.iter().map(|p| p.1));
-    let (x_desc, y_desc) = feature_labels(family);
+    let (x_desc, y_desc) = feature_labels(kind);
     let root = BitMapBackend::new(path, (720, 520)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let title = format!(
@@ -323,7 +320,8 @@ pub fn paths(
         .label_style((FONT, 13))
         .draw()
         .map_err(|x| e(&x))?;
-    let series: [(&str, RGBAColor, &Vec<Vec<(f64, f64)>>); 2] = [
+    type Paths = Vec<Vec<(f64, f64)>>;
+    let series: [(&str, RGBAColor, &Paths); 2] = [
         ("before (current model)", RED.mix(0.8), &b),
         ("after (augmented model)", GREEN.mix(0.8), &a),
     ];

@@ -5,193 +5,14 @@
 //! is named only when it clearly cuts the held-out prediction error. Intervals come from a
 //! bootstrap over the fitting windows.
 
-use super::trace::{Prediction, Trace};
-use crate::config::PhysicsConfig;
 use crate::physics::Effect;
+use crate::physics::PhysicsConfig;
+use crate::physics::effects::{Family, FitSetting, Refinement};
+use crate::trace::{Prediction, Trace};
 use crate::world::ShapeId;
 use anyhow::Result;
 use glam::{Vec2, Vec3};
 use serde::Serialize;
-
-/// One candidate family: the effect it adds and the parameter it fits.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Family {
-    ViscousDrag,
-    GroundFriction,
-    ConstantForce,
-    Spring,
-    MassScale,
-    AngularDamping,
-    /// Ground contacts give back part of the impact speed (a bounce).
-    Restitution,
-    FrictionPatch,
-    /// Centre of mass moved along the body's x or y axis.
-    CenterOfMass(usize),
-}
-
-pub const ALL: [Family; 10] = [
-    Family::ViscousDrag,
-    Family::GroundFriction,
-    Family::ConstantForce,
-    Family::Spring,
-    Family::MassScale,
-    Family::AngularDamping,
-    Family::Restitution,
-    Family::FrictionPatch,
-    Family::CenterOfMass(0),
-    Family::CenterOfMass(1),
-];
-
-impl Family {
-    /// The effect's name in reports (both centre-of-mass axes are one effect).
-    pub fn name(self) -> &'static str {
-        match self {
-            Family::ViscousDrag => "viscous_drag",
-            Family::GroundFriction => "ground_friction",
-            Family::ConstantForce => "constant_force",
-            Family::Spring => "spring",
-            Family::MassScale => "mass_error",
-            Family::AngularDamping => "angular_damping",
-            Family::Restitution => "restitution",
-            Family::FrictionPatch => "friction_patch",
-            Family::CenterOfMass(_) => "center_of_mass_offset",
-        }
-    }
-
-    /// How many quantities the family takes from the data: its parameter plus what its setting
-    /// estimates (a direction, an anchor, a region, an axis). Between fits the held-out windows
-    /// cannot tell apart, the simpler is named.
-    pub fn complexity(self) -> usize {
-        match self {
-            Family::ViscousDrag
-            | Family::GroundFriction
-            | Family::MassScale
-            | Family::AngularDamping
-            | Family::Restitution => 1,
-            Family::ConstantForce | Family::CenterOfMass(_) => 2,
-            Family::Spring => 3,
-            Family::FrictionPatch => 5,
-        }
-    }
-
-    /// The fitted parameter's name and unit.
-    pub fn parameter(self) -> (&'static str, &'static str) {
-        match self {
-            Family::ViscousDrag => ("coefficient", "N s/m"),
-            Family::GroundFriction | Family::FrictionPatch => ("friction", ""),
-            Family::ConstantForce => ("magnitude", "N"),
-            Family::Spring => ("stiffness", "N/m"),
-            Family::MassScale => ("factor", ""),
-            Family::AngularDamping => ("coefficient", "1/s"),
-            Family::Restitution => ("coefficient", ""),
-            Family::CenterOfMass(_) => ("offset", "m"),
-        }
-    }
-}
-
-/// What a family needs to know beyond its parameter: the object, the base physics, directions
-/// and places found from the base model's prediction errors.
-#[derive(Clone)]
-pub struct Setting {
-    pub object: String,
-    pub shape: ShapeId,
-    pub mass: f32,
-    pub base: PhysicsConfig,
-    /// Direction of the missing force in the plane (mean displacement error), if any.
-    pub force_direction: Option<Vec3>,
-    /// Anchor of a spring that would explain the displacement errors, if one would.
-    pub anchor: Option<Vec3>,
-    /// The table area (x, y box) the object's particles covered in the fitting windows; a
-    /// friction patch is placed inside it (`place_patch`).
-    pub region: Option<(Vec2, Vec2)>,
-    /// Largest centre-of-mass offset along body x and y that keeps every particle's mass positive.
-    pub com_limit: [f32; 2],
-}
-
-impl Setting {
-    /// The search range of `family`'s parameter (low, high, logarithmic), or None when the family
-    /// does not apply (no direction, no anchor, no region).
-    fn range(&self, family: Family) -> Option<(f32, f32, bool)> {
-        let m = self.mass;
-        let g = 9.81;
-        match family {
-            Family::ViscousDrag => Some((0.03 * m, 30.0 * m, true)),
-            Family::GroundFriction => Some((0.0, 0.6, false)),
-            Family::ConstantForce => self
-                .force_direction
-                .map(|_| (0.002 * m * g, 0.3 * m * g, true)),
-            Family::Spring => self.anchor.map(|_| (0.1 * m, 100.0 * m, true)),
-            Family::MassScale => Some((0.25, 4.0, true)),
-            Family::AngularDamping => Some((0.03, 30.0, true)),
-            Family::Restitution => Some((0.0, 0.95, false)),
-            Family::FrictionPatch => self.region.map(|_| (0.0, 1.0, false)),
-            Family::CenterOfMass(axis) => (self.com_limit[axis] > 1e-3)
-                .then(|| (-self.com_limit[axis], self.com_limit[axis], false)),
-        }
-    }
-
-    /// The effect of `family` with parameter `value`.
-    pub fn effect(&self, family: Family, value: f32) -> Option<Effect> {
-        let object = self.object.clone();
-        let friction_gap = self.base.ground.static_friction - self.base.ground.kinetic_friction;
-        Some(match family {
-            Family::ViscousDrag => Effect::ViscousDrag {
-                object: Some(object),
-                coefficient: value,
-            },
-            Family::GroundFriction => Effect::FrictionPatch {
-                center: Vec2::ZERO,
-                half_size: Vec2::splat(1e3),
-                static_friction: value + friction_gap,
-                kinetic_friction: value,
-            },
-            Family::ConstantForce => Effect::ConstantForce {
-                object: Some(object),
-                force: self.force_direction? * value,
-            },
-            Family::Spring => Effect::Spring {
-                object,
-                point: Vec3::ZERO,
-                anchor: self.anchor?,
-                stiffness: value,
-                rest_length: 0.0,
-                damping: 0.0,
-                tether: false,
-            },
-            Family::MassScale => Effect::MassScale {
-                object,
-                factor: value,
-            },
-            Family::AngularDamping => Effect::AngularDamping {
-                object: Some(object),
-                coefficient: value,
-            },
-            Family::Restitution => Effect::Restitution {
-                object: Some(object),
-                coefficient: value,
-            },
-            Family::FrictionPatch => {
-                let (lo, hi) = self.region?;
-                Effect::FrictionPatch {
-                    center: (lo + hi) * 0.5,
-                    half_size: (hi - lo) * 0.5,
-                    static_friction: value + friction_gap,
-                    kinetic_friction: value,
-                }
-            }
-            Family::CenterOfMass(axis) => Effect::CenterOfMassOffset {
-                object,
-                offset: if axis == 0 { Vec3::X } else { Vec3::Y } * value,
-            },
-        })
-    }
-
-    fn physics(&self, family: Family, value: f32) -> Option<PhysicsConfig> {
-        let mut p = self.base.clone();
-        p.effects.push(self.effect(family, value)?);
-        Some(p)
-    }
-}
 
 /// A family fitted to the training windows and judged on the held-out ones.
 #[derive(Clone, Debug, Serialize)]
@@ -215,7 +36,7 @@ pub struct Fit {
     #[serde(skip)]
     pub train_errors: Vec<f64>,
     #[serde(skip)]
-    pub family: Option<Family>,
+    pub family: Option<&'static dyn Family>,
     /// The physics term as fitted (with its direction, anchor or region).
     #[serde(rename = "term")]
     pub effect_term: Option<Effect>,
@@ -298,8 +119,8 @@ fn golden(
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     trace: &Trace,
-    setting: &Setting,
-    family: Family,
+    setting: &FitSetting,
+    family: &'static dyn Family,
     train: &[usize],
     heldout: &[usize],
     horizon: usize,
@@ -307,11 +128,11 @@ pub fn fit(
     base_heldout: &[Prediction],
 ) -> Result<Option<Fit>> {
     let mut setting = setting.clone();
-    if family == Family::FrictionPatch {
-        setting.region = place_patch(trace, &setting, train, horizon);
+    if family.placed_in_slid_area() {
+        setting.region = place_patch(trace, &setting, family, train, horizon);
     }
     let setting = &setting;
-    let Some((lo, hi, log)) = setting.range(family) else {
+    let Some((lo, hi, log)) = family.range(setting) else {
         return Ok(None);
     };
     let to_x = |v: f32| if log { v.ln() } else { v };
@@ -326,17 +147,18 @@ pub fn fit(
     let mean = |e: &[f64]| e.iter().sum::<f64>() / e.len().max(1) as f64;
     // Every evaluated parameter with its per-window squared errors.
     let mut evaluated: Vec<(f32, Vec<f64>)> = Vec::new();
-    let loss = |v: f32, setting: &Setting, evaluated: &mut Vec<(f32, Vec<f64>)>| -> Result<f64> {
-        let Some(e) = setting
-            .physics(family, v)
-            .and_then(|p| squared_errors(&p, train))
-        else {
-            return Ok(f64::INFINITY);
+    let loss =
+        |v: f32, setting: &FitSetting, evaluated: &mut Vec<(f32, Vec<f64>)>| -> Result<f64> {
+            let Some(e) = setting
+                .physics(family, v)
+                .and_then(|p| squared_errors(&p, train))
+            else {
+                return Ok(f64::INFINITY);
+            };
+            let l = mean(&e);
+            evaluated.push((v, e));
+            Ok(l)
         };
-        let l = mean(&e);
-        evaluated.push((v, e));
-        Ok(l)
-    };
     let xs: Vec<f32> = (0..GRID)
         .map(|i| to_x(lo) + (to_x(hi) - to_x(lo)) * i as f32 / (GRID - 1) as f32)
         .collect();
@@ -400,9 +222,9 @@ pub fn fit(
     }
     let physics = setting
         .physics(family, value)
-        .ok_or_else(|| anyhow::anyhow!("family {family:?} lost its setting"))?;
+        .ok_or_else(|| anyhow::anyhow!("family {} lost its setting", family.id()))?;
     let held: Vec<f64> = squared_errors(&physics, heldout)
-        .ok_or_else(|| anyhow::anyhow!("family {family:?}: held-out prediction failed"))?;
+        .ok_or_else(|| anyhow::anyhow!("family {}: held-out prediction failed", family.id()))?;
     let (name, unit) = family.parameter();
     Ok(Some(Fit {
         effect: family.name().to_string(),
@@ -418,7 +240,7 @@ pub fn fit(
         heldout_errors: held,
         train_errors,
         family: Some(family),
-        effect_term: setting.effect(family, value),
+        effect_term: family.effect(&setting, value),
     }))
 }
 
@@ -440,7 +262,8 @@ const PATCH_STEPS: usize = 6;
 /// when it slows down tells them apart.
 fn place_patch(
     trace: &Trace,
-    setting: &Setting,
+    setting: &FitSetting,
+    family: &dyn Family,
     train: &[usize],
     horizon: usize,
 ) -> Option<(Vec2, Vec2)> {
@@ -449,7 +272,7 @@ fn place_patch(
     let loss = |region: (Vec2, Vec2), friction: f32| -> f64 {
         let mut s = setting.clone();
         s.region = Some(region);
-        s.physics(Family::FrictionPatch, friction)
+        s.physics(family, friction)
             .and_then(|p| trace.predict(&p, setting.shape, train, horizon).ok())
             .map_or(f64::INFINITY, |p| {
                 path_mean_square(trace, setting.shape, &p)
@@ -497,9 +320,7 @@ fn place_patch(
     let misses = |q: &[f64]| {
         let mut s = setting.clone();
         s.region = Some(cut(q[0] as f32, beyond));
-        let physics = s
-            .physics(Family::FrictionPatch, q[1] as f32)
-            .filter(|_| q[1] >= 0.0)?;
+        let physics = s.physics(family, q[1] as f32).filter(|_| q[1] >= 0.0)?;
         path_misses(
             trace,
             setting.shape,
@@ -540,7 +361,7 @@ pub fn footprint(
 
 /// A family refined beyond its one parameter (see `refine`).
 struct Refined {
-    setting: Setting,
+    setting: FitSetting,
     value: f32,
     low: f32,
     high: f32,
@@ -571,39 +392,17 @@ fn misses(
 /// one-parameter fit. The interval is a bootstrap over windows of the last linearised step.
 fn refine(
     trace: &Trace,
-    setting: &Setting,
-    family: Family,
+    setting: &FitSetting,
+    family: &dyn Family,
     value: f32,
     train: &[usize],
     horizon: usize,
 ) -> Result<Option<Refined>> {
     // The parameters, their finite-difference steps, and the setting + value they stand for.
-    let (p, steps): (Vec<f64>, Vec<f64>) = match (family, setting.force_direction, setting.anchor) {
-        (Family::ConstantForce, Some(d), _) => (
-            vec![(d.x * value) as f64, (d.y * value) as f64],
-            vec![0.1 * value.max(1e-3) as f64; 2],
-        ),
-        (Family::Spring, _, Some(a)) => (
-            vec![value as f64, a.x as f64, a.y as f64],
-            vec![0.1 * value.max(1e-3) as f64, 0.01, 0.01],
-        ),
-        _ => return Ok(None),
+    let Some(Refinement { start: p, steps }) = family.refinement(setting, value) else {
+        return Ok(None);
     };
-    let apply = |p: &[f64]| -> Option<(Setting, f32)> {
-        let mut s = setting.clone();
-        match family {
-            Family::ConstantForce => {
-                let f = Vec3::new(p[0] as f32, p[1] as f32, 0.0);
-                s.force_direction = Some(f.try_normalize()?);
-                Some((s, f.length()))
-            }
-            _ => {
-                let a = s.anchor?;
-                s.anchor = Some(Vec3::new(p[1] as f32, p[2] as f32, a.z));
-                (p[0] > 0.0).then_some((s, p[0] as f32))
-            }
-        }
-    };
+    let apply = |p: &[f64]| family.refined(setting, p);
     let residual = |p: &[f64]| {
         apply(p)
             .and_then(|(s, v)| s.physics(family, v))
@@ -870,6 +669,7 @@ fn spring_anchor(rows: &[(Vec2, Vec2)]) -> Option<Vec2> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::physics::effects::{ConstantForce, FrictionPatch, Restitution, family};
 
     /// A 0.2 kg box (6 x 4 x 2 cm) released at height `z` on a table with kinetic `friction` (the
     /// base physics; static 0.01 higher), set to `kick(k)` before tick k where that is Some, and
@@ -882,7 +682,7 @@ mod tests {
         kick: impl Fn(usize) -> Option<Vec3>,
     ) -> (Trace, ShapeId) {
         use crate::math::Pose;
-        use crate::scene::{WorldBuilder, box_lattice};
+        use crate::world::{WorldBuilder, box_lattice};
         let mut b = WorldBuilder::new();
         let points = box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01);
         let shape = b.add_rigid(
@@ -903,7 +703,8 @@ mod tests {
             base: world.clone(),
             physics: base,
             robot: None,
-            states: vec![super::super::trace::State::of(&world)],
+            states: vec![crate::trace::State::of(&world)],
+            samples: Vec::new(),
         };
         let mut solver = crate::physics::Solver::new(truth, &world).unwrap();
         for k in 0..ticks {
@@ -914,7 +715,7 @@ mod tests {
                     .for_each(|i| world.particles.velocity[i] = v);
             }
             solver.step(&mut world).unwrap();
-            trace.states.push(super::super::trace::State::of(&world));
+            trace.states.push(crate::trace::State::of(&world));
         }
         (trace, shape)
     }
@@ -939,14 +740,14 @@ mod tests {
     fn gauss_newton_recovers_a_constant_forces_direction_and_magnitude() {
         let force = Vec3::new(0.03, 0.017, 0.0); // 0.0345 N at 30 degrees
         let (trace, shape) = kicked_box(
-            Effect::ConstantForce {
+            Effect::ConstantForce(ConstantForce {
                 object: Some("box".into()),
                 force,
-            },
+            }),
             [Vec3::new(0.3, -0.2, 0.0), Vec3::new(-0.35, 0.1, 0.0)],
         );
         let guess = glam::Quat::from_rotation_z(25f32.to_radians()) * force.normalize();
-        let setting = Setting {
+        let setting = FitSetting {
             object: "box".into(),
             shape,
             mass: 0.2,
@@ -959,7 +760,7 @@ mod tests {
         let refined = refine(
             &trace,
             &setting,
-            Family::ConstantForce,
+            family("constant_force").unwrap(),
             0.5 * force.length(),
             &between_kicks(),
             30,
@@ -984,19 +785,19 @@ mod tests {
     #[test]
     fn a_friction_patch_is_placed_at_its_edge_with_its_friction() {
         let (center, half_size) = (Vec2::new(0.22, 0.0), Vec2::new(0.1, 0.2));
-        let patch = Effect::FrictionPatch {
+        let patch = Effect::FrictionPatch(FrictionPatch {
             center,
             half_size,
             static_friction: 0.2,
             kinetic_friction: 0.2,
-        };
+        });
         let (trace, shape) = kicked_box(
             patch,
             [Vec3::new(0.45, 0.0, 0.0), Vec3::new(-0.4, 0.0, 0.0)],
         );
         let train = between_kicks();
         let region = footprint(&trace, shape, &train, 30);
-        let setting = Setting {
+        let setting = FitSetting {
             object: "box".into(),
             shape,
             mass: 0.2,
@@ -1010,7 +811,7 @@ mod tests {
         let fit = fit(
             &trace,
             &setting,
-            Family::FrictionPatch,
+            family("friction_patch").unwrap(),
             &train,
             &train,
             30,
@@ -1019,9 +820,9 @@ mod tests {
         )
         .unwrap()
         .unwrap();
-        let Some(Effect::FrictionPatch {
+        let Some(Effect::FrictionPatch(FrictionPatch {
             center, half_size, ..
-        }) = fit.effect_term
+        })) = fit.effect_term
         else {
             panic!("{fit:?}")
         };
@@ -1042,13 +843,13 @@ mod tests {
     /// back shows in how far it slides (it brakes only while it touches the table).
     #[test]
     fn a_bounce_is_fitted_with_its_restitution() {
-        let bounce = Effect::Restitution {
+        let bounce = Effect::Restitution(Restitution {
             object: Some("box".into()),
             coefficient: 0.6,
-        };
+        });
         let (trace, shape) = traced_box(0.2, 0.25, bounce, 60, |k| (k == 0).then_some(Vec3::X));
         let train: Vec<usize> = (2..=10).step_by(2).collect();
-        let setting = Setting {
+        let setting = FitSetting {
             object: "box".into(),
             shape,
             mass: 0.2,
@@ -1062,7 +863,7 @@ mod tests {
         let fit = fit(
             &trace,
             &setting,
-            Family::Restitution,
+            family("restitution").unwrap(),
             &train,
             &train,
             30,

@@ -4,8 +4,8 @@
 //! coefficients are significant and physically plausible. Coefficient intervals are 95 %, with the
 //! standard errors widened for the residual's autocorrelation (successive ticks are not independent).
 
-use super::Sample;
 use super::candidates::{Candidate, observed};
+use crate::trace::Sample;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 

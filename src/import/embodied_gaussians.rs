@@ -1,16 +1,19 @@
 //! The layout of the PEGS authors' sample data (`embodied_gaussians`): per camera an HEVC video
 //! with a JSON of timestamps and intrinsics, `cameras.json` with OpenGL-style camera-to-world
 //! matrices, objects as JSON (Gaussians with w,x,y,z quaternions and B,G,R colours) and the ground
-//! plane. Every foreign convention is converted here, at the boundary, and nowhere else.
+//! plane. Every foreign convention of the layout is converted here, at the boundary; the object
+//! files themselves are read by `init::object_file`.
 
-use crate::config::{Config, ObjectConfig, TableConfig};
-use crate::init::{BodyGaussian, ColourMask, ObjectModel};
+use crate::config::Config;
+use crate::init::ColourMask;
+use crate::init::object_file::{load_object, pose_from_rows, read_json};
+use crate::init::{ObjectConfig, TableConfig};
 use crate::math::Pose;
 use crate::msgs::{self, Time};
 use crate::record::{self, RecordingWriter};
 use crate::render::Camera;
 use anyhow::{Context, Result, bail};
-use glam::{DMat3, DMat4, DQuat, DVec3, Quat, Vec2, Vec3};
+use glam::{DMat4, DVec3, Vec2, Vec3};
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::io::Read;
@@ -33,63 +36,9 @@ struct VideoMeta {
 }
 
 #[derive(Deserialize)]
-struct GaussianSet {
-    means: Vec<[f32; 3]>,
-    /// w, x, y, z.
-    quats: Vec<[f32; 4]>,
-    /// Standard deviations, m.
-    scales: Vec<[f32; 3]>,
-    opacities: Vec<f32>,
-    /// B, G, R in (0, 1).
-    colors: Vec<[f32; 3]>,
-}
-
-#[derive(Deserialize)]
-struct ParticleSet {
-    means: Vec<[f32; 3]>,
-    radii: Vec<f32>,
-}
-
-/// An object file: body-to-world pose at capture time, Gaussians and particles in the body frame.
-#[derive(Deserialize)]
-struct ObjectFile {
-    name: String,
-    #[serde(rename = "X_WB")]
-    x_wb: [[f64; 4]; 4],
-    gaussians: GaussianSet,
-    particles: ParticleSet,
-}
-
-#[derive(Deserialize)]
 struct PlaneFile {
     /// a, b, c, d of `a x + b y + c z + d = 0`.
     plane: [f64; 4],
-}
-
-/// A row-major 4x4 rigid transform as a `Pose`; rejects matrices that are not rigid.
-pub fn pose_from_rows(m: &[[f64; 4]; 4]) -> Result<Pose> {
-    let r = DMat3::from_cols(
-        DVec3::new(m[0][0], m[1][0], m[2][0]),
-        DVec3::new(m[0][1], m[1][1], m[2][1]),
-        DVec3::new(m[0][2], m[1][2], m[2][2]),
-    );
-    let t = DVec3::new(m[0][3], m[1][3], m[2][3]);
-    let orthonormality = (r.transpose() * r - DMat3::IDENTITY)
-        .to_cols_array()
-        .iter()
-        .fold(0.0f64, |a, v| a.max(v.abs()));
-    if !t.is_finite()
-        || orthonormality > 1e-3
-        || (r.determinant() - 1.0).abs() > 1e-3
-        || m[3] != [0.0, 0.0, 0.0, 1.0]
-    {
-        bail!(
-            "not a rigid transform (rotation off by {orthonormality:.1e}, det {:.4})",
-            r.determinant()
-        );
-    }
-    let q = DQuat::from_mat3(&r).normalize();
-    Ok(Pose::new(t.as_vec3(), q.as_quat().normalize()))
 }
 
 /// Camera-to-world of an OpenGL camera (looks along -Z, +Y up) as the pose of the REP-105 optical
@@ -98,16 +47,6 @@ pub fn optical_from_opengl(camera_to_world: &[[f64; 4]; 4]) -> Result<Pose> {
     let gl = DMat4::from_cols_array_2d(camera_to_world).transpose();
     let flipped = gl * DMat4::from_diagonal(glam::DVec4::new(1.0, -1.0, -1.0, 1.0));
     pose_from_rows(&flipped.transpose().to_cols_array_2d())
-}
-
-/// A quaternion stored w, x, y, z.
-pub fn quat_from_wxyz(q: [f32; 4]) -> Quat {
-    Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize()
-}
-
-/// A colour stored B, G, R.
-pub fn rgb_from_bgr(c: [f32; 3]) -> Vec3 {
-    Vec3::new(c[2], c[1], c[0])
 }
 
 /// The ground plane `a x + b y + c z + d = 0` as (unit normal pointing up, height along it).
@@ -119,79 +58,6 @@ pub fn ground_from_plane(p: [f64; 4]) -> Result<(Vec3, f32)> {
     }
     let sign = if n.z >= 0.0 { 1.0 } else { -1.0 };
     Ok(((n * sign / len).as_vec3(), (-p[3] * sign / len) as f32))
-}
-
-fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    serde_json::from_str(&text)
-        .with_context(|| format!("{} is not in the expected format", path.display()))
-}
-
-/// Load an object file into the neutral object model (RGB colours, x,y,z,w quaternions).
-pub fn load_object(path: &Path) -> Result<ObjectModel> {
-    let f: ObjectFile = read_json(path)?;
-    let g = &f.gaussians;
-    let n = g.means.len();
-    if [
-        g.quats.len(),
-        g.scales.len(),
-        g.opacities.len(),
-        g.colors.len(),
-    ]
-    .iter()
-    .any(|&k| k != n)
-    {
-        bail!(
-            "{}: the Gaussian arrays have different lengths",
-            path.display()
-        );
-    }
-    if f.particles.means.len() != f.particles.radii.len() || f.particles.means.is_empty() {
-        bail!(
-            "{}: particles need as many radii as means, and at least one",
-            path.display()
-        );
-    }
-    let gaussians: Vec<BodyGaussian> = (0..n)
-        .map(|i| BodyGaussian {
-            mean: Vec3::from_array(g.means[i]),
-            rotation: quat_from_wxyz(g.quats[i]),
-            scale: Vec3::from_array(g.scales[i]),
-            opacity: g.opacities[i],
-            colour: rgb_from_bgr(g.colors[i]),
-        })
-        .collect();
-    let particles: Vec<(Vec3, f32)> = f
-        .particles
-        .means
-        .iter()
-        .zip(&f.particles.radii)
-        .map(|(m, r)| (Vec3::from_array(*m), *r))
-        .collect();
-    let finite = gaussians.iter().all(|g| {
-        g.mean.is_finite()
-            && g.rotation.is_finite()
-            && g.scale.is_finite()
-            && g.scale.min_element() > 0.0
-            && g.opacity.is_finite()
-            && g.colour.is_finite()
-    }) && particles
-        .iter()
-        .all(|(p, r)| p.is_finite() && r.is_finite() && *r > 0.0);
-    if !finite {
-        bail!(
-            "{}: non-finite or non-positive values in Gaussians or particles",
-            path.display()
-        );
-    }
-    let pose = pose_from_rows(&f.x_wb).with_context(|| format!("{}: X_WB", path.display()))?;
-    Ok(ObjectModel {
-        name: f.name,
-        pose,
-        particles,
-        gaussians,
-    })
 }
 
 /// One camera of the layout, with its timestamps.
@@ -584,6 +450,7 @@ pub fn read_npy_points(path: &Path) -> Result<Vec<Vec3>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::init::object_file::{quat_from_wxyz, rgb_from_bgr};
 
     #[test]
     fn opengl_camera_becomes_an_optical_frame_looking_along_its_minus_z() {

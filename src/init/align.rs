@@ -329,7 +329,7 @@ fn pattern_search(search: &mut Search, mut x: [f32; 3], mut score: f32) -> (f32,
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::{WorldBuilder, t_block_lattice};
+    use crate::world::{WorldBuilder, t_block_lattice};
 
     #[test]
     fn a_t_block_placed_off_and_turned_is_found_from_its_masks() {

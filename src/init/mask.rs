@@ -86,7 +86,7 @@ impl ColourMask {
         let largest = sizes.iter().copied().max().unwrap_or(0);
         let keep: Vec<bool> = sizes
             .iter()
-            .map(|&s| s > 0 && s >= 20 && s * 10 >= largest)
+            .map(|&s| s >= 20 && s * 10 >= largest)
             .collect();
         label.iter().map(|&l| l != 0 && keep[l as usize]).collect()
     }

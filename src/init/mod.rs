@@ -4,18 +4,23 @@
 //! tracking starts. This module builds worlds; it never steps them.
 
 pub mod align;
+mod config;
 pub mod mask;
+pub mod object_file;
 pub mod rgbd;
 pub mod table;
 
+pub use config::{ObjectConfig, RgbdObjectConfig, SceneConfig, TableConfig};
 pub use mask::ColourMask;
 
-use crate::config::Config;
+use crate::correct::{explained, rendered_palette};
 use crate::math::Pose;
-use crate::render::{Camera, GaussianCloud};
-use crate::scene::WorldBuilder;
-use crate::scene::builtin::Scene;
-use crate::world::NO_PARENT;
+use crate::physics::GroundConfig;
+use crate::render::cpu::CpuRenderer;
+use crate::render::{Camera, GaussianCloud, RenderSettings, Roi};
+use crate::robot::{JointTrajectory, PackagePaths, RobotConfig, RobotInWorld, RobotModel};
+use crate::scene::Scene;
+use crate::world::{NO_PARENT, ShapeId, World, WorldBuilder};
 use anyhow::{Context, Result, bail};
 use glam::{Quat, Vec3};
 use serde::Serialize;
@@ -23,28 +28,6 @@ use std::collections::BTreeMap;
 
 /// Colour distance of the occluder test used while fitting silhouettes (see `correct::explained`).
 const OCCLUDER_THRESHOLD: f32 = 0.35;
-
-/// A Gaussian in an object's body frame.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct BodyGaussian {
-    pub mean: Vec3,
-    pub rotation: Quat,
-    /// Standard deviations, m.
-    pub scale: Vec3,
-    pub opacity: f32,
-    /// RGB in [0, 1].
-    pub colour: Vec3,
-}
-
-/// An object as particles and Gaussians in its body frame, with its body-to-world pose.
-#[derive(Clone, Debug)]
-pub struct ObjectModel {
-    pub name: String,
-    pub pose: Pose,
-    /// Body-frame position and radius of each particle.
-    pub particles: Vec<(Vec3, f32)>,
-    pub gaussians: Vec<BodyGaussian>,
-}
 
 /// The first frames of one camera.
 pub struct FirstFrames<'a> {
@@ -120,19 +103,30 @@ pub fn settle_on_ground(
     -gap
 }
 
+/// What initialisation reads from the configuration: the scene section, the robot, the ground
+/// plane (replaced by a fitted one with `scene.ground_from_depth`) and the renderer.
+pub struct Settings<'a> {
+    pub scene: &'a SceneConfig,
+    pub robot: &'a RobotConfig,
+    pub ground: &'a GroundConfig,
+    pub render: &'a RenderSettings,
+}
+
 /// Build the tracker's world from the first frames: the robot from its URDF at the first joint
 /// positions; the ground from depth (RANSAC) if asked; `scene.rgbd_objects` from depth and
 /// instance masks (or, without masks, clusters of depth points above the ground that are not the
 /// robot); `scene.objects` from their files, each aligned to its colour mask; every object settled
-/// onto the ground; then the table fitted to the frames with the objects' pixels left out.
+/// onto the ground; then the table fitted to the frames with the objects' pixels left out, and
+/// the objects' silhouettes to their masks.
 pub fn build_scene(
-    config: &Config,
+    settings: &Settings,
     frames: &[FirstFrames],
     initial_joints: &[(String, f64)],
     progress: bool,
 ) -> Result<(Scene, InitReport)> {
     let clock = std::time::Instant::now();
-    if config.scene.objects.is_empty() && config.scene.rgbd_objects.is_empty() {
+    let scene = settings.scene;
+    if scene.objects.is_empty() && scene.rgbd_objects.is_empty() {
         bail!(
             "the configuration names no scene.scenario, scene.objects or scene.rgbd_objects: nothing to track"
         );
@@ -141,178 +135,260 @@ pub fn build_scene(
     let mut builder = WorldBuilder::new();
     // The robot first, at its first recorded joint positions (the replay drives it from then on):
     // clustering needs to know which depth points are the robot.
-    let robot = match &config.robot.urdf {
-        Some(path) => {
-            let model = crate::robot::RobotModel::load(
-                path,
-                &crate::robot::PackagePaths(config.robot.package_paths.clone()),
-                config.robot.geometry,
-            )?;
-            let mut q = vec![0.0; model.joints.len()];
-            for (name, v) in initial_joints {
-                if let Some(j) = model.joint_index(name)
-                    && v.is_finite()
-                {
-                    q[j] = *v;
-                }
-            }
-            Some((
-                crate::robot::RobotInWorld::add(&mut builder, model, &q, &config.robot)?,
-                crate::robot::JointTrajectory::default(),
-            ))
-        }
-        None => None,
-    };
-    let with_depth: Vec<(&FirstFrames, &[Vec3], &[f32])> = frames
+    let robot = add_robot(&mut builder, settings.robot, initial_joints)?;
+    let depth: Vec<DepthFrame> = frames
         .iter()
         .filter_map(|f| Some((f, *f.images.first()?, f.depth?)))
         .collect();
-    let mut ground = (
-        config.physics.ground.normal.normalize_or(Vec3::Z),
-        config.physics.ground.height,
-    );
-    let wants_depth = config.scene.ground_from_depth || !config.scene.rgbd_objects.is_empty();
-    if wants_depth && with_depth.is_empty() {
+    if (scene.ground_from_depth || !scene.rgbd_objects.is_empty()) && depth.is_empty() {
         bail!(
             "the configuration builds the ground or objects from depth, but the recording has no depth images"
         );
     }
-    if config.scene.ground_from_depth {
-        // Background points: not labelled as an object where masks exist.
-        let points: Vec<Vec3> = with_depth
-            .iter()
-            .flat_map(|(f, _, depth)| {
-                let probe = rgbd::RgbdFrame {
-                    camera: f.camera,
-                    colour: &[],
-                    depth,
-                    labels: &[],
-                };
-                (0..depth.len())
-                    .step_by(3)
-                    .filter(|&k| f.labels.is_none_or(|l| l[k] == 0))
-                    .filter_map(|k| probe.point(k))
-                    .collect::<Vec<_>>()
-            })
-            .collect();
-        let (normal, height, inliers) = rgbd::ground_ransac(&points, 300, 0.003, 1)
-            .context("no depth to fit the ground plane to")?;
-        if inliers < 100 {
-            bail!("the ground plane fitted to the depth has only {inliers} points");
-        }
-        ground = (normal, height);
-        report.ground = Some(ground);
+    let ground = GroundConfig {
+        normal: settings.ground.normal.normalize_or(Vec3::Z),
+        ..settings.ground.clone()
+    };
+    let ground = match scene.ground_from_depth {
+        true => fitted_ground(&depth, ground, &mut report)?,
+        false => ground,
+    };
+    if !scene.rgbd_objects.is_empty() {
+        add_rgbd_objects(
+            &mut builder,
+            settings,
+            &depth,
+            &ground,
+            progress,
+            &mut report,
+        )?;
     }
-    if !config.scene.rgbd_objects.is_empty() {
-        // Instance masks as recorded, or else clusters of the depth points above the ground.
-        let labels: Vec<Vec<u8>> = if with_depth.iter().all(|(f, _, _)| f.labels.is_some()) {
-            with_depth
-                .iter()
-                .map(|(f, _, _)| f.labels.map(|l| l.to_vec()).unwrap_or_default())
-                .collect()
-        } else {
-            let w = builder.world();
-            let known: Vec<Vec3> = w.particles.position.clone();
-            let cameras: Vec<Camera> = with_depth.iter().map(|(f, _, _)| f.camera).collect();
-            let depths: Vec<&[f32]> = with_depth.iter().map(|(_, _, d)| *d).collect();
-            report.labels_from_clusters = true;
-            rgbd::cluster_labels(&cameras, &depths, ground, &known, 0.004, 0.02, 0.01)
-        };
-        let rgbd: Vec<rgbd::RgbdFrame> = with_depth
-            .iter()
-            .zip(&labels)
-            .map(|((f, colour, depth), l)| rgbd::RgbdFrame {
+    let files = add_file_objects(&mut builder, scene, &mut report)?;
+    let mut world = builder.build();
+    let mut object_pixels = fit_file_objects(
+        &mut world,
+        &files,
+        frames,
+        &ground,
+        settings.render,
+        progress,
+        &mut report,
+    )?;
+    // Objects start resting on the ground, not in it: the physics would turn a penetration into
+    // a jump (a 2 mm overlap resolved in one substep is a 1 m/s kick).
+    if ground.enabled {
+        for s in world.shapes.dynamic_ids().collect::<Vec<_>>() {
+            settle_on_ground(&mut world, s, ground.normal, ground.height);
+        }
+    }
+    if let Some(table) = &scene.table {
+        leave_out_rendered_objects(&world, frames, settings.render, &mut object_pixels);
+        let fit = add_table(
+            &mut world,
+            table,
+            frames,
+            object_pixels,
+            &ground,
+            settings.render,
+            progress,
+        )?;
+        report.table = Some(fit);
+    }
+    fit_silhouettes(&mut world, &files, frames, settings.render, &mut report)?;
+    report.seconds = clock.elapsed().as_secs_f64();
+    let scene = Scene {
+        world,
+        scripts: Vec::new(),
+        robot,
+    };
+    Ok((scene, report))
+}
+
+/// A camera's first image and depth.
+type DepthFrame<'a> = (&'a FirstFrames<'a>, &'a [Vec3], &'a [f32]);
+
+/// An object loaded from a file: its shape, name and configuration.
+type FileObject<'a> = (ShapeId, String, &'a ObjectConfig);
+
+/// The robot from its URDF, placed at `initial_joints` (missing or non-finite ones at zero).
+fn add_robot(
+    builder: &mut WorldBuilder,
+    config: &RobotConfig,
+    initial_joints: &[(String, f64)],
+) -> Result<Option<(RobotInWorld, JointTrajectory)>> {
+    let Some(path) = &config.urdf else {
+        return Ok(None);
+    };
+    let packages = PackagePaths(config.package_paths.clone());
+    let model = RobotModel::load(path, &packages, config.geometry)?;
+    let mut q = vec![0.0; model.joints.len()];
+    for (name, v) in initial_joints {
+        if let Some(j) = model.joint_index(name)
+            && v.is_finite()
+        {
+            q[j] = *v;
+        }
+    }
+    let robot = RobotInWorld::add(builder, model, &q, config)?;
+    Ok(Some((robot, JointTrajectory::default())))
+}
+
+/// The ground plane by RANSAC through the depth points not labelled as an object.
+fn fitted_ground(
+    depth: &[DepthFrame],
+    ground: GroundConfig,
+    report: &mut InitReport,
+) -> Result<GroundConfig> {
+    let points: Vec<Vec3> = depth
+        .iter()
+        .flat_map(|(f, _, depth)| {
+            let probe = rgbd::RgbdFrame {
                 camera: f.camera,
-                colour,
+                colour: &[],
                 depth,
-                labels: l,
-            })
-            .collect();
-        for object in config.scene.rgbd_objects.iter().filter(|o| o.rope) {
-            let (points, colour) = rgbd::rope_from_rgbd(
-                &object.name,
-                object.label,
-                &rgbd,
-                ground,
-                object.particle_radius,
-            )
-            .with_context(|| format!("rope '{}'", object.name))?;
-            let rope = builder.add_rope(
-                &object.name,
-                &points,
-                object.particle_radius,
-                object.mass / points.len() as f32,
-                object.bending_stiffness,
-                colour,
-            );
-            builder.set_gaussian_look(rope, object.particle_radius, 0.97);
-            report.objects.insert(
-                object.name.clone(),
-                ObjectInit {
-                    particles: points.len(),
-                    gaussians: points.len(),
-                    mass_kg: object.mass,
-                    alignment: None,
-                    colour_fit: None,
-                    silhouette_fit: None,
-                },
-            );
-        }
-        let rigid: Vec<_> = config
-            .scene
-            .rgbd_objects
-            .iter()
-            .filter(|o| !o.rope)
-            .collect();
-        let bar = if progress {
-            indicatif::ProgressBar::new(rigid.len() as u64)
-        } else {
-            indicatif::ProgressBar::hidden()
-        };
-        bar.set_style(
-            indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        for object in rigid {
-            bar.set_message(format!("building {} from RGB-D", object.name));
-            bar.inc(1);
-            let (model, r) = rgbd::object_from_rgbd(
-                &object.name,
-                object.label,
-                &rgbd,
-                ground,
-                object.particle_radius,
-                0.0,
-                &config.render,
-            )
-            .with_context(|| format!("object '{}'", object.name))?;
-            builder.add_rigid_model(
-                &object.name,
-                &model,
-                object.mass / model.particles.len() as f32,
-            );
-            report.objects.insert(
-                object.name.clone(),
-                ObjectInit {
-                    particles: model.particles.len(),
-                    gaussians: model.gaussians.len(),
-                    mass_kg: object.mass,
-                    alignment: None,
-                    colour_fit: Some(r.colour_fit.clone()),
-                    silhouette_fit: None,
-                },
-            );
-            report.rgbd_objects.insert(object.name.clone(), r);
-        }
-        bar.finish_and_clear();
+                labels: &[],
+            };
+            (0..depth.len())
+                .step_by(3)
+                .filter(|&k| f.labels.is_none_or(|l| l[k] == 0))
+                .filter_map(|k| probe.point(k))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let (normal, height, inliers) = rgbd::ground_ransac(&points, 300, 0.003, 1)
+        .context("no depth to fit the ground plane to")?;
+    if inliers < 100 {
+        bail!("the ground plane fitted to the depth has only {inliers} points");
     }
+    report.ground = Some((normal, height));
+    Ok(GroundConfig {
+        normal,
+        height,
+        ..ground
+    })
+}
+
+/// `scene.rgbd_objects`: ropes as chains along their centre line, rigid objects as carved
+/// lattices with fitted Gaussians, from instance masks as recorded or, without them, clusters of
+/// the depth points above the ground that are not the robot.
+fn add_rgbd_objects(
+    builder: &mut WorldBuilder,
+    settings: &Settings,
+    depth: &[DepthFrame],
+    ground: &GroundConfig,
+    progress: bool,
+    report: &mut InitReport,
+) -> Result<()> {
+    let plane = (ground.normal, ground.height);
+    let labels: Vec<Vec<u8>> = if depth.iter().all(|(f, _, _)| f.labels.is_some()) {
+        depth
+            .iter()
+            .map(|(f, _, _)| f.labels.map(|l| l.to_vec()).unwrap_or_default())
+            .collect()
+    } else {
+        let known: Vec<Vec3> = builder.world().particles.position.clone();
+        let cameras: Vec<Camera> = depth.iter().map(|(f, _, _)| f.camera).collect();
+        let depths: Vec<&[f32]> = depth.iter().map(|(_, _, d)| *d).collect();
+        report.labels_from_clusters = true;
+        rgbd::cluster_labels(&cameras, &depths, plane, &known, 0.004, 0.02, 0.01)
+    };
+    let rgbd: Vec<rgbd::RgbdFrame> = depth
+        .iter()
+        .zip(&labels)
+        .map(|((f, colour, depth), l)| rgbd::RgbdFrame {
+            camera: f.camera,
+            colour,
+            depth,
+            labels: l,
+        })
+        .collect();
+    let objects = &settings.scene.rgbd_objects;
+    for object in objects.iter().filter(|o| o.rope) {
+        let (points, colour) = rgbd::rope_from_rgbd(
+            &object.name,
+            object.label,
+            &rgbd,
+            plane,
+            object.particle_radius,
+        )
+        .with_context(|| format!("rope '{}'", object.name))?;
+        let mass = object.mass / points.len() as f32;
+        let rope = builder.add_rope(
+            &object.name,
+            &points,
+            object.particle_radius,
+            mass,
+            object.bending_stiffness,
+            colour,
+        );
+        builder.set_gaussian_look(rope, object.particle_radius, 0.97);
+        let init = ObjectInit {
+            particles: points.len(),
+            gaussians: points.len(),
+            mass_kg: object.mass,
+            ..Default::default()
+        };
+        report.objects.insert(object.name.clone(), init);
+    }
+    let rigid: Vec<_> = objects.iter().filter(|o| !o.rope).collect();
+    let bar = progress_bar(progress, rigid.len());
+    for object in rigid {
+        bar.set_message(format!("building {} from RGB-D", object.name));
+        bar.inc(1);
+        let (model, r) = rgbd::object_from_rgbd(
+            &object.name,
+            object.label,
+            &rgbd,
+            plane,
+            object.particle_radius,
+            0.0,
+            settings.render,
+        )
+        .with_context(|| format!("object '{}'", object.name))?;
+        builder.add_rigid_model(
+            &object.name,
+            &model,
+            object.mass / model.particles.len() as f32,
+        );
+        let init = ObjectInit {
+            particles: model.particles.len(),
+            gaussians: model.gaussians.len(),
+            mass_kg: object.mass,
+            colour_fit: Some(r.colour_fit.clone()),
+            ..Default::default()
+        };
+        report.objects.insert(object.name.clone(), init);
+        report.rgbd_objects.insert(object.name.clone(), r);
+    }
+    bar.finish_and_clear();
+    Ok(())
+}
+
+fn progress_bar(progress: bool, len: usize) -> indicatif::ProgressBar {
+    let bar = if progress {
+        indicatif::ProgressBar::new(len as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let style = indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed}")
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+    bar.set_style(style);
+    bar
+}
+
+/// `scene.objects` from their files (the embodied-gaussians format).
+fn add_file_objects<'a>(
+    builder: &mut WorldBuilder,
+    scene: &'a SceneConfig,
+    report: &mut InitReport,
+) -> Result<Vec<FileObject<'a>>> {
     let mut shapes = Vec::new();
-    for object in &config.scene.objects {
+    for object in &scene.objects {
         if object.name.is_empty() {
             bail!("every scene.objects entry needs a name");
         }
         let name = object.name.clone();
-        let model = crate::import::embodied_gaussians::load_object(&object.embodied_gaussians)
+        let model = object_file::load_object(&object.embodied_gaussians)
             .with_context(|| format!("object '{name}'"))?;
         if !(object.mass.is_finite() && object.mass > 0.0) {
             bail!(
@@ -321,40 +397,43 @@ pub fn build_scene(
             );
         }
         let s = builder.add_rigid_model(&name, &model, object.mass / model.particles.len() as f32);
-        report.objects.insert(
-            name.clone(),
-            ObjectInit {
-                particles: model.particles.len(),
-                gaussians: model.gaussians.len(),
-                mass_kg: object.mass,
-                alignment: None,
-                colour_fit: None,
-                silhouette_fit: None,
-            },
-        );
+        let init = ObjectInit {
+            particles: model.particles.len(),
+            gaussians: model.gaussians.len(),
+            mass_kg: object.mass,
+            ..Default::default()
+        };
+        report.objects.insert(name.clone(), init);
         shapes.push((s, name, object));
     }
-    let mut world = builder.build();
-    let config = &{
-        let mut c = config.clone();
-        (c.physics.ground.normal, c.physics.ground.height) = ground;
-        c
-    };
+    Ok(shapes)
+}
+
+/// Objects from files with a colour mask: aligned on the table to their masks in the first
+/// frames and their colours fitted to the inside of the masks. Returns, per camera and frame, the
+/// pixels of every masked object (dilated), to leave out of the table's fit.
+#[allow(clippy::too_many_arguments)]
+fn fit_file_objects(
+    world: &mut World,
+    files: &[FileObject],
+    frames: &[FirstFrames],
+    ground: &GroundConfig,
+    render: &RenderSettings,
+    progress: bool,
+    report: &mut InitReport,
+) -> Result<Vec<Vec<Vec<bool>>>> {
     let first: Vec<(&FirstFrames, &[Vec3])> = frames
         .iter()
         .filter_map(|f| f.images.first().map(|i| (f, *i)))
         .collect();
-    // Pixels of every object in every camera's frames, left out of the table fit.
     let mut object_pixels: Vec<Vec<Vec<bool>>> = frames
         .iter()
         .map(|f| {
-            f.images
-                .iter()
-                .map(|_| vec![false; (f.camera.width * f.camera.height) as usize])
-                .collect()
+            let pixels = (f.camera.width * f.camera.height) as usize;
+            f.images.iter().map(|_| vec![false; pixels]).collect()
         })
         .collect();
-    for (s, name, object) in &shapes {
+    for (s, name, object) in files {
         let Some(mask) = object.mask else { continue };
         for (f, frame) in frames.iter().enumerate() {
             for (k, image) in frame.images.iter().enumerate() {
@@ -378,202 +457,189 @@ pub fn build_scene(
                     mask: mask.segment(image, f.camera.width, f.camera.height),
                 })
                 .collect();
-            let a = align::align_on_table(
-                &mut world,
-                *s,
-                &views,
-                config.physics.ground.normal,
-                &config.render,
-            );
+            let a = align::align_on_table(world, *s, &views, ground.normal, render);
             if let Some(o) = report.objects.get_mut(name) {
                 o.alignment = Some(a);
             }
         }
         // The object's colours under this recording's lighting: fitted to the inside of its masks.
         if object.colour_fit_steps > 0 && !first.is_empty() {
-            let ids = world.gaussians_of(*s);
-            let mut cloud =
-                GaussianCloud::from_world_where(&world, |i| ids.binary_search(&i).is_ok());
-            let fit_frames: Vec<table::FitFrame> = first
-                .iter()
-                .map(|(f, image)| {
-                    let outside: Vec<bool> = mask
-                        .segment(image, f.camera.width, f.camera.height)
-                        .iter()
-                        .map(|m| !m)
-                        .collect();
-                    table::FitFrame {
-                        camera: f.camera,
-                        image,
-                        ignore: dilate(&outside, f.camera.width, f.camera.height, 2),
-                    }
-                })
-                .collect();
-            let fit = table::fit_colours(
-                &mut cloud,
-                &fit_frames,
+            let fit = fit_object_colours(
+                world,
+                *s,
+                &mask,
+                &first,
                 object.colour_fit_steps,
-                0.02,
-                1.0,
-                &config.render,
+                render,
                 progress,
             )?;
-            for (k, &i) in ids.iter().enumerate() {
-                world.gaussians.colour[i] = cloud.colour[k];
-            }
             if let Some(o) = report.objects.get_mut(name) {
                 o.colour_fit = Some(fit);
             }
         }
     }
-    // Objects start resting on the ground, not in it: the physics would turn a penetration into
-    // a jump (a 2 mm overlap resolved in one substep is a 1 m/s kick).
-    if config.physics.ground.enabled {
-        for s in world.shapes.dynamic_ids().collect::<Vec<_>>() {
-            settle_on_ground(
-                &mut world,
-                s,
-                config.physics.ground.normal,
-                config.physics.ground.height,
-            );
+    Ok(object_pixels)
+}
+
+/// Adam on the colours of shape `s`'s Gaussians against the inside of `mask` in the first frames.
+fn fit_object_colours(
+    world: &mut World,
+    s: ShapeId,
+    mask: &ColourMask,
+    first: &[(&FirstFrames, &[Vec3])],
+    steps: u32,
+    render: &RenderSettings,
+    progress: bool,
+) -> Result<table::ColourFit> {
+    let ids = world.gaussians_of(s);
+    let mut cloud = GaussianCloud::from_world_where(world, |i| ids.binary_search(&i).is_ok());
+    let fit_frames: Vec<table::FitFrame> = first
+        .iter()
+        .map(|(f, image)| {
+            let (w, h) = (f.camera.width, f.camera.height);
+            let outside: Vec<bool> = mask.segment(image, w, h).iter().map(|m| !m).collect();
+            table::FitFrame {
+                camera: f.camera,
+                image,
+                ignore: dilate(&outside, w, h, 2),
+            }
+        })
+        .collect();
+    let fit = table::fit_colours(&mut cloud, &fit_frames, steps, 0.02, 1.0, render, progress)?;
+    for (k, &i) in ids.iter().enumerate() {
+        world.gaussians.colour[i] = cloud.colour[k];
+    }
+    Ok(fit)
+}
+
+/// Objects without a mask: leave out of the table's fit where they render now (after alignment).
+fn leave_out_rendered_objects(
+    world: &World,
+    frames: &[FirstFrames],
+    render: &RenderSettings,
+    object_pixels: &mut [Vec<Vec<bool>>],
+) {
+    let cloud = GaussianCloud::from_world(world);
+    let mut renderer = CpuRenderer::new(render.clone());
+    for (f, frame) in frames.iter().enumerate() {
+        let (w, h) = (frame.camera.width, frame.camera.height);
+        let out = renderer.forward(&cloud, &frame.camera, Roi::full(&frame.camera));
+        let covered: Vec<bool> = out.alpha.iter().map(|a| *a > 0.05).collect();
+        let rendered = dilate(&covered, w, h, 3);
+        for pixels in &mut object_pixels[f] {
+            pixels.iter_mut().zip(&rendered).for_each(|(a, b)| *a |= *b);
         }
     }
-    if let Some(table_config) = &config.scene.table {
-        // Objects without a mask: leave out where they render now (after alignment).
-        let cloud = crate::render::GaussianCloud::from_world(&world);
-        let mut renderer = crate::render::cpu::CpuRenderer::new(config.render.clone());
-        for (f, frame) in frames.iter().enumerate() {
-            let out = renderer.forward(
-                &cloud,
-                &frame.camera,
-                crate::render::Roi::full(&frame.camera),
-            );
-            let rendered = dilate(
-                &out.alpha.iter().map(|a| *a > 0.05).collect::<Vec<_>>(),
-                frame.camera.width,
-                frame.camera.height,
-                3,
-            );
-            for k in 0..frame.images.len() {
-                object_pixels[f][k]
-                    .iter_mut()
-                    .zip(&rendered)
-                    .for_each(|(a, b)| *a |= *b);
-            }
-        }
-        let fit_frames: Vec<table::FitFrame> = frames
-            .iter()
-            .zip(object_pixels)
-            .flat_map(|(f, ignores)| {
-                f.images
-                    .iter()
-                    .zip(ignores)
-                    .take(table_config.fit_frames.max(1) as usize)
-                    .map(move |(image, ignore)| table::FitFrame {
-                        camera: f.camera,
-                        image,
-                        ignore,
-                    })
+}
+
+/// The table's disks on the ground plane, fitted to the frames with `object_pixels` left out, added
+/// to the world as static Gaussians.
+fn add_table(
+    world: &mut World,
+    table_config: &TableConfig,
+    frames: &[FirstFrames],
+    object_pixels: Vec<Vec<Vec<bool>>>,
+    ground: &GroundConfig,
+    render: &RenderSettings,
+    progress: bool,
+) -> Result<table::ColourFit> {
+    let per_camera = table_config.fit_frames.max(1) as usize;
+    let fit_frames: Vec<table::FitFrame> = frames
+        .iter()
+        .zip(object_pixels)
+        .flat_map(|(f, ignores)| {
+            let frames = f.images.iter().zip(ignores).take(per_camera);
+            frames.map(move |(image, ignore)| table::FitFrame {
+                camera: f.camera,
+                image,
+                ignore,
             })
-            .collect();
-        let mean_colour = {
-            let (sum, n) = fit_frames
-                .iter()
-                .flat_map(|f| f.image.iter().zip(&f.ignore))
-                .filter(|(_, i)| !**i)
-                .fold((Vec3::ZERO, 0usize), |(s, n), (c, _)| (s + *c, n + 1));
-            if n > 0 {
-                sum / n as f32
-            } else {
-                Vec3::splat(0.5)
-            }
-        };
-        let mut disks = table::table_disks(table_config, &config.physics.ground, mean_colour);
-        let fit = table::fit_table(
-            &mut disks,
-            &fit_frames,
-            table_config,
-            &config.render,
-            progress,
-        )?;
-        for i in 0..disks.len() {
-            let r = disks.rotation[i];
-            let scale = Vec3::new(
-                disks.log_scale[i].x.exp(),
-                disks.log_scale[i].y.exp(),
-                disks.log_scale[i].z.exp(),
-            );
-            world.gaussians.push(
-                NO_PARENT,
-                disks.mean[i],
-                Quat::from_xyzw(r.x, r.y, r.z, r.w).normalize(),
-                scale,
-                crate::render::sigmoid(disks.opacity_logit[i]),
-                disks.colour[i],
-            );
+        })
+        .collect();
+    let mean_colour = {
+        let (sum, n) = fit_frames
+            .iter()
+            .flat_map(|f| f.image.iter().zip(&f.ignore))
+            .filter(|(_, i)| !**i)
+            .fold((Vec3::ZERO, 0usize), |(s, n), (c, _)| (s + *c, n + 1));
+        if n > 0 {
+            sum / n as f32
+        } else {
+            Vec3::splat(0.5)
         }
-        report.table = Some(fit);
+    };
+    let mut disks = table::table_disks(table_config, ground, mean_colour);
+    let fit = table::fit_table(&mut disks, &fit_frames, table_config, render, progress)?;
+    for i in 0..disks.len() {
+        let r = disks.rotation[i];
+        let l = disks.log_scale[i];
+        let scale = Vec3::new(l.x.exp(), l.y.exp(), l.z.exp());
+        let rotation = Quat::from_xyzw(r.x, r.y, r.z, r.w).normalize();
+        let opacity = crate::render::sigmoid(disks.opacity_logit[i]);
+        world.gaussians.push(
+            NO_PARENT,
+            disks.mean[i],
+            rotation,
+            scale,
+            opacity,
+            disks.colour[i],
+        );
     }
-    // Silhouettes: each masked object's coverage fitted to its masks in the first frames, leaving
-    // out pixels that neither it nor the table explains (an unmodelled arm in front of it).
-    for (s, name, object) in &shapes {
+    Ok(fit)
+}
+
+/// Each masked object's coverage fitted to its masks in the first frames, leaving out pixels that
+/// neither it nor the table explains (an unmodelled arm in front of it).
+fn fit_silhouettes(
+    world: &mut World,
+    files: &[FileObject],
+    frames: &[FirstFrames],
+    render: &RenderSettings,
+    report: &mut InitReport,
+) -> Result<()> {
+    let first: Vec<(&FirstFrames, &[Vec3])> = frames
+        .iter()
+        .filter_map(|f| f.images.first().map(|i| (f, *i)))
+        .collect();
+    for (s, name, object) in files {
         let (Some(mask), true) = (object.mask, object.silhouette_fit_steps > 0) else {
             continue;
         };
-        let scene = GaussianCloud::static_scene(&world);
+        let scene = GaussianCloud::static_scene(world);
         let ids = world.gaussians_of(*s);
         let object_cloud =
-            GaussianCloud::from_world_where(&world, |i| ids.binary_search(&i).is_ok());
-        let mut renderer = crate::render::cpu::CpuRenderer::new(config.render.clone());
+            GaussianCloud::from_world_where(world, |i| ids.binary_search(&i).is_ok());
+        let mut renderer = CpuRenderer::new(render.clone());
         let mut views = Vec::new();
         let mut ignores = Vec::new();
         for (f, image) in &first {
-            let m = mask.segment(image, f.camera.width, f.camera.height);
+            let (w, h) = (f.camera.width, f.camera.height);
+            let m = mask.segment(image, w, h);
             let table = renderer
-                .forward(&scene, &f.camera, crate::render::Roi::full(&f.camera))
+                .forward(&scene, &f.camera, Roi::full(&f.camera))
                 .colour;
-            let own = renderer.forward(
-                &object_cloud,
-                &f.camera,
-                crate::render::Roi::full(&f.camera),
-            );
-            let palette = crate::correct::rendered_palette(&own.colour, &own.alpha);
+            let own = renderer.forward(&object_cloud, &f.camera, Roi::full(&f.camera));
+            let palette = rendered_palette(&own.colour, &own.alpha);
             let ignore: Vec<bool> = (0..m.len())
-                .map(|k| {
-                    !m[k]
-                        && !crate::correct::explained(
-                            image[k],
-                            table[k],
-                            &palette,
-                            OCCLUDER_THRESHOLD,
-                        )
-                })
+                .map(|k| !m[k] && !explained(image[k], table[k], &palette, OCCLUDER_THRESHOLD))
                 .collect();
             views.push(align::MaskView {
                 camera: f.camera,
                 mask: m,
             });
-            ignores.push(dilate(&ignore, f.camera.width, f.camera.height, 2));
+            ignores.push(dilate(&ignore, w, h, 2));
         }
         let fit = align::fit_silhouette(
-            &mut world,
+            world,
             *s,
             &views,
             &ignores,
             object.silhouette_fit_steps,
-            &config.render,
+            render,
         )?;
         if let Some(o) = report.objects.get_mut(name) {
             o.silhouette_fit = Some(fit);
         }
     }
-    report.seconds = clock.elapsed().as_secs_f64();
-    Ok((
-        Scene {
-            world,
-            scripts: Vec::new(),
-            robot,
-        },
-        report,
-    ))
+    Ok(())
 }

@@ -6,9 +6,9 @@
 //! are bonded to their particles.
 
 use super::table::{ColourFit, FitFrame, fit_colours};
-use super::{BodyGaussian, ObjectModel};
 use crate::math::Pose;
 use crate::render::{Camera, GaussianCloud, GaussianParams, RenderSettings, logit};
+use crate::world::{BodyGaussian, ObjectModel};
 use anyhow::{Context, Result, bail};
 use glam::{Quat, Vec2, Vec3, Vec4};
 use serde::Serialize;

@@ -2,8 +2,9 @@
 //! colours are fitted by Adam to the first frames, so the background behind the objects renders
 //! like the real table. Pixels of the objects (and anything else the caller masks) are left out.
 
-use crate::config::{GroundConfig, TableConfig};
+use super::TableConfig;
 use crate::correct::adam::Adam;
+use crate::physics::GroundConfig;
 use crate::render::cpu::CpuRenderer;
 use crate::render::{
     Camera, GaussianCloud, GaussianParams, PixelGrads, RenderSettings, Roi, logit,

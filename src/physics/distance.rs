@@ -141,7 +141,7 @@ impl LongRangeAttachments {
 mod attachment_tests {
     use super::*;
     use crate::math::Pose;
-    use crate::scene::WorldBuilder;
+    use crate::world::WorldBuilder;
 
     #[test]
     fn attachments_bound_each_particle_by_its_distance_along_the_rope() {

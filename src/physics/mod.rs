@@ -7,16 +7,17 @@
 //! plain data. Nothing here renders or reads sensors.
 
 mod collide;
+mod config;
 mod distance;
 pub mod effects;
 mod ground;
 mod shape_matching;
 mod spatial_hash;
 
+pub use config::{CollisionConfig, GroundConfig, PhysicsConfig};
 pub use effects::Effect;
 pub use ground::Plane;
 
-use crate::config::PhysicsConfig;
 use crate::math::Pose;
 use crate::world::{Phase, ShapeId, ShapeKind, World};
 use anyhow::Result;
@@ -309,7 +310,16 @@ impl Solver {
         let p = &world.particles;
         let max_radius = p.radius.iter().copied().fold(0.0f32, f32::max);
         let margin = self.config.collisions.margin * max_radius;
-        self.hash.build(&p.position, 2.0 * max_radius + margin);
+        // Only particles within reach of one that can be pushed can be a contact partner: the
+        // rest (most of a robot, far from the objects) stay out of the hash.
+        let reach = 2.0 * max_radius + margin;
+        let pushed = (0..p.len()).filter(|&i| self.inv_mass[i] > 0.0);
+        let (lo, hi) = pushed.fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), i| {
+            (lo.min(p.position[i]), hi.max(p.position[i]))
+        });
+        let slack = Vec3::splat(1.5 * reach);
+        self.hash
+            .build_within(&p.position, reach, (lo - slack, hi + slack));
         spatial_hash::find_neighbours(
             &self.hash,
             &p.position,

@@ -48,17 +48,33 @@ fn hash_cell(c: IVec3, mask: u32) -> u32 {
 
 impl SpatialHash {
     /// Sort `positions` into cells of edge `cell` (at least the largest interaction distance).
+    #[cfg(test)]
     pub fn build(&mut self, positions: &[Vec3], cell: f32) {
-        let n = positions.len();
-        let size = (2 * n).next_power_of_two().max(64);
+        let everywhere = (Vec3::splat(f32::NEG_INFINITY), Vec3::splat(f32::INFINITY));
+        self.build_within(positions, cell, everywhere);
+    }
+
+    /// Sort the particles inside the box `(lo, hi)` into cells of edge `cell`; the others are
+    /// left out (never reported by `for_each_near`).
+    pub fn build_within(&mut self, positions: &[Vec3], cell: f32, (lo, hi): (Vec3, Vec3)) {
+        let inside: Vec<u32> = (0..positions.len() as u32)
+            .filter(|&i| {
+                let p = positions[i as usize];
+                p.cmpge(lo).all() && p.cmple(hi).all()
+            })
+            .collect();
+        let size = (2 * inside.len()).next_power_of_two().max(64);
         self.inv_cell = 1.0 / cell;
         self.mask = (size - 1) as u32;
+        // Left-out particles keep a cell no query reaches; they are in no bucket anyway.
         self.cells.clear();
-        self.cells
-            .extend(positions.iter().map(|&p| cell_of(p, self.inv_cell)));
+        self.cells.resize(positions.len(), IVec3::MIN);
         self.keys.clear();
-        self.keys
-            .extend(self.cells.iter().map(|&c| hash_cell(c, self.mask)));
+        for &i in &inside {
+            let c = cell_of(positions[i as usize], self.inv_cell);
+            self.cells[i as usize] = c;
+            self.keys.push(hash_cell(c, self.mask));
+        }
         self.cell_start.clear();
         self.cell_start.resize(size + 1, 0);
         for &k in &self.keys {
@@ -69,9 +85,9 @@ impl SpatialHash {
         }
         let mut fill = self.cell_start.clone();
         self.sorted.clear();
-        self.sorted.resize(n, 0);
-        for (i, &k) in self.keys.iter().enumerate() {
-            self.sorted[fill[k as usize] as usize] = i as u32;
+        self.sorted.resize(inside.len(), 0);
+        for (&i, &k) in inside.iter().zip(&self.keys) {
+            self.sorted[fill[k as usize] as usize] = i;
             fill[k as usize] += 1;
         }
     }
@@ -197,5 +213,23 @@ mod tests {
             total > 100,
             "the test cloud must actually contain contacts ({total})"
         );
+        // Hashing only what lies within reach of the pushable particles finds the same lists.
+        let reach = 2.0 * 0.008 + margin;
+        let pushed = (0..n).filter(|&i| inv_mass[i] > 0.0 && pos[i].x < 0.0);
+        let (lo, hi) = pushed.fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), i| {
+            (lo.min(pos[i]), hi.max(pos[i]))
+        });
+        let half: Vec<f32> = (0..n)
+            .map(|i| if pos[i].x < 0.0 { inv_mass[i] } else { 0.0 })
+            .collect();
+        let mut all = NeighbourLists::default();
+        find_neighbours(&hash, &pos, &radius, &shape, &half, margin, &mut all);
+        let mut near = SpatialHash::default();
+        near.build_within(&pos, reach, (lo - reach, hi + reach));
+        let mut within = NeighbourLists::default();
+        find_neighbours(&near, &pos, &radius, &shape, &half, margin, &mut within);
+        assert_eq!(within.offsets, all.offsets);
+        assert_eq!(within.neighbours, all.neighbours);
+        assert!(near.sorted.len() < n, "particles beyond reach are left out");
     }
 }

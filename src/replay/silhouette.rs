@@ -3,12 +3,15 @@
 
 use crate::correct::explained;
 use crate::init::ColourMask;
+use crate::init::ObjectConfig;
 use crate::render::cpu::CpuRenderer;
 use crate::render::{Camera, GaussianCloud, RenderSettings, Roi, footprint_roi};
+use crate::tracker::{Observer, Tick};
 use crate::world::{ShapeId, World};
 use anyhow::{Context, Result};
 use glam::Vec3;
 use serde::Serialize;
+use std::collections::BTreeMap;
 
 /// IoU statistics over the frames: of the whole silhouette (`mean`, `p5`), and of its visible
 /// part (`visible_mean`, `visible_p5`: pixels where something the model does not have, such as an
@@ -165,6 +168,113 @@ impl SilhouetteMeter {
                 })
                 .collect()
         })
+    }
+}
+
+/// The silhouette meters of a replay (one per object with a colour mask) as one observer, and
+/// the contact sheet of six moments spread over the recording.
+pub struct Silhouettes {
+    meters: Vec<SilhouetteMeter>,
+    cameras: Vec<String>,
+    sheet_ticks: Vec<usize>,
+    sheet: Vec<Vec<(u32, u32, Vec<Vec3>)>>,
+}
+
+impl Silhouettes {
+    /// Meters for the `objects` of `world` that have a mask, over `ticks` ticks of `cameras`.
+    /// `occluder_threshold`: the correction's occluder test (0: its usual value, 0.35).
+    pub fn new(
+        world: &World,
+        objects: &[ObjectConfig],
+        cameras: Vec<String>,
+        ticks: usize,
+        render: &RenderSettings,
+        occluder_threshold: f32,
+    ) -> Self {
+        let threshold = if occluder_threshold > 0.0 {
+            occluder_threshold
+        } else {
+            0.35
+        };
+        let meters = objects
+            .iter()
+            .filter_map(|o| {
+                let shape = world.shape_id(&o.name)?;
+                Some(SilhouetteMeter::new(
+                    shape,
+                    &o.name,
+                    o.mask?,
+                    cameras.len(),
+                    render,
+                    threshold,
+                ))
+            })
+            .collect();
+        Self {
+            meters,
+            cameras,
+            sheet_ticks: (0..6)
+                .map(|i| 1 + i * ticks.saturating_sub(1) / 5)
+                .collect(),
+            sheet: Vec::new(),
+        }
+    }
+
+    /// Per object and camera the IoU statistics; writes `silhouette_iou.csv` and
+    /// `contact_sheet.png` into `out` (nothing without meters).
+    pub fn finish(
+        &self,
+        out: &std::path::Path,
+    ) -> Result<BTreeMap<String, BTreeMap<String, IouStats>>> {
+        let mut table: BTreeMap<String, BTreeMap<String, IouStats>> = BTreeMap::new();
+        if self.meters.is_empty() {
+            return Ok(table);
+        }
+        let mut csv = String::from("t,object,camera,iou,visible_iou\n");
+        for meter in &self.meters {
+            let per_camera = table.entry(meter.object.clone()).or_default();
+            for (series, camera) in meter.series.iter().zip(&self.cameras) {
+                let whole: Vec<f32> = series.iter().map(|s| s.1).collect();
+                let visible: Vec<f32> = series.iter().map(|s| s.2).collect();
+                per_camera.insert(camera.clone(), iou_stats(&whole, &visible));
+                for (t, v, visible) in series {
+                    csv += &format!("{t:.6},{},{camera},{v:.4},{visible:.4}\n", meter.object);
+                }
+            }
+        }
+        let path = out.join("silhouette_iou.csv");
+        std::fs::write(&path, csv).with_context(|| format!("cannot write {}", path.display()))?;
+        write_contact_sheet(&out.join("contact_sheet.png"), &self.sheet)?;
+        Ok(table)
+    }
+}
+
+impl Observer for Silhouettes {
+    /// Silhouettes of the corrected state against the images it was corrected with.
+    fn tick(&mut self, tick: &Tick) -> Result<()> {
+        let overlay = self.sheet_ticks.contains(&tick.index);
+        let world = tick.tracker.world();
+        let mut row = Vec::new();
+        for meter in &mut self.meters {
+            for image in &tick.inputs.images {
+                let cam = &image.camera;
+                let measured = meter.measure(
+                    world,
+                    image.index,
+                    cam,
+                    &image.pixels,
+                    tick.inputs.time,
+                    overlay,
+                );
+                if let Some(o) = measured {
+                    row.push((cam.width, cam.height, o));
+                }
+            }
+        }
+        if !row.is_empty() {
+            self.sheet.push(row);
+        }
+        Ok(())
     }
 }
 

@@ -14,7 +14,7 @@ pub use sampling::Sampling;
 
 use crate::math::Pose;
 use crate::physics::KinematicDriver;
-use crate::scene::WorldBuilder;
+use crate::world::WorldBuilder;
 use crate::world::{ShapeId, World};
 use anyhow::{Result, bail};
 use glam::{DAffine3, DQuat, Quat, Vec3};

@@ -1,85 +1,40 @@
 //! `pegs node`: the tracker as a ROS 2 node (ros2-client on tokio). Subscriptions feed
-//! `inputs::Inputs`; a dedicated thread runs predict / correct at the physics rate on the newest
-//! data and hands what it produced to a publishing thread, so neither waits on the network.
+//! `inputs::Inputs`; a dedicated thread drives `Tracker::tick` at the physics rate on the newest
+//! data and hands what each tick produced to a publishing thread, so neither waits on the network.
 //!
 //! - `params`: the configuration as ROS parameters and `--ros-args` overrides.
+//! - `node`: the node itself: parameters, the three kinds of threads, run statistics.
+//! - `subscribe`: topics in, checked and handed to the shared state.
+//! - `tick`: the tick thread: starts the tracker once cameras are known, then drives it.
+//! - `diagnostics`: `/diagnostics` from the last window of ticks.
+//! - `publish`: the publishing thread.
 //! - `outputs`: messages built from the tracked world (pure functions).
-//! - `node`: topics, threads, diagnostics.
 
+mod diagnostics;
 pub mod node;
 pub mod outputs;
 pub mod params;
+mod publish;
+mod subscribe;
+mod tick;
 
-use anyhow::{Result, bail};
-use serde::{Deserialize, Serialize};
+use std::time::{SystemTime, UNIX_EPOCH};
 
-/// Topics, frames and output rates of the node. Camera topics are templates in which
-/// `{camera}` stands for each name in `cameras`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct NodeConfig {
-    pub cameras: Vec<String>,
-    pub image_topic: String,
-    pub camera_info_topic: String,
-    /// Depth (32FC1, m) and instance masks (mono8): read once, to initialise a scene from RGB-D.
-    pub depth_topic: String,
-    pub mask_topic: String,
-    /// Each camera's optical frame (z forward, y down), looked up on /tf_static.
-    pub optical_frame: String,
-    pub joint_states_topic: String,
-    pub world_frame: String,
-    /// Prefix of every output topic: `{prefix}/objects`, `{prefix}/poses`, `{prefix}/particles`,
-    /// `{prefix}/debug/{camera}/image` (and `/compressed`).
-    pub output_prefix: String,
-    /// Render and publish debug images every N ticks (0: never).
-    pub debug_images_every: u32,
-    /// Seconds between diagnostics messages.
-    pub diagnostics_period: f32,
+/// Seconds since the Unix epoch: the node's clock (ROS time without simulated time).
+pub fn now() -> f64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
 }
 
-impl Default for NodeConfig {
-    fn default() -> Self {
-        Self {
-            cameras: vec!["cam0".into(), "cam1".into(), "cam2".into()],
-            image_topic: "/{camera}/color/image_raw".into(),
-            camera_info_topic: "/{camera}/color/camera_info".into(),
-            depth_topic: "/{camera}/depth/image_raw".into(),
-            mask_topic: "/{camera}/mask/image_raw".into(),
-            optical_frame: "{camera}_color_optical_frame".into(),
-            joint_states_topic: "/joint_states".into(),
-            world_frame: "world".into(),
-            output_prefix: "/pegs".into(),
-            debug_images_every: 10,
-            diagnostics_period: 1.0,
-        }
-    }
+fn log(line: &str) {
+    eprintln!("[pegs {:.3}] {line}", now());
 }
 
-impl NodeConfig {
-    pub fn validate(&self) -> Result<()> {
-        if self.cameras.is_empty() {
-            bail!("node.cameras must name at least one camera");
-        }
-        for (name, t) in [
-            ("image_topic", &self.image_topic),
-            ("camera_info_topic", &self.camera_info_topic),
-            ("optical_frame", &self.optical_frame),
-        ] {
-            if !t.contains("{camera}") {
-                bail!("node.{name} must contain {{camera}}, got '{t}'");
-            }
-        }
-        if !(self.diagnostics_period.is_finite() && self.diagnostics_period > 0.0) {
-            bail!(
-                "node.diagnostics_period must be > 0, got {}",
-                self.diagnostics_period
-            );
-        }
-        Ok(())
-    }
-
-    /// `template` with `{camera}` replaced.
-    pub fn for_camera(template: &str, camera: &str) -> String {
-        template.replace("{camera}", camera)
-    }
+/// Resident memory of this process in MB (Linux; 0 elsewhere).
+pub fn rss_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/statm")
+        .ok()
+        .and_then(|s| s.split_whitespace().nth(1)?.parse::<f64>().ok())
+        .map_or(0.0, |pages| pages * 4096.0 / 1e6)
 }

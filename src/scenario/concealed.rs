@@ -11,10 +11,13 @@ use super::{BOX_Z, add_box, add_painted_box, add_table};
 use crate::config::Config;
 use crate::math::Pose;
 use crate::physics::Effect;
+use crate::physics::effects::{
+    CenterOfMassOffset, FrictionPatch, MassScale, Spring, TableTilt, ViscousDrag,
+};
 use crate::robot::{RobotConfig, RobotInWorld};
-use crate::scene::WorldBuilder;
-use crate::scene::builtin::{self, Scene, pusher_trajectory};
+use crate::scene::{self, Scene, pusher_trajectory};
 use crate::tracker::Tracker;
+use crate::world::WorldBuilder;
 use anyhow::{Context, Result};
 use glam::{DVec3, Quat, Vec2, Vec3};
 
@@ -109,26 +112,26 @@ pub fn truth(name: &str) -> HiddenTruth {
     let box_ = || "box".to_string();
     match name {
         "concealed_drag" => HiddenTruth {
-            effects: vec![Effect::ViscousDrag {
+            effects: vec![Effect::ViscousDrag(ViscousDrag {
                 object: Some(box_()),
                 coefficient: 1.0,
-            }],
+            })],
             effect: Some("viscous_drag"),
             parameter: Some(("coefficient", 1.0)),
             region: None,
         },
         "concealed_tilt" => HiddenTruth {
-            effects: vec![Effect::TableTilt {
+            effects: vec![Effect::TableTilt(TableTilt {
                 angle: TILT_ANGLE,
                 azimuth: 0.0,
-            }],
+            })],
             effect: Some("constant_force"),
             // The in-plane part of gravity on the box: m g sin(angle).
             parameter: Some(("magnitude", BOX_MASS * 9.81 * TILT_ANGLE.sin())),
             region: None,
         },
         "concealed_tether" => HiddenTruth {
-            effects: vec![Effect::Spring {
+            effects: vec![Effect::Spring(Spring {
                 object: box_(),
                 point: Vec3::ZERO,
                 anchor: START - Vec3::new(0.0, 0.1, 0.0),
@@ -136,7 +139,7 @@ pub fn truth(name: &str) -> HiddenTruth {
                 rest_length: 0.0,
                 damping: 0.0,
                 tether: true,
-            }],
+            })],
             effect: Some("spring"),
             parameter: Some(("stiffness", 0.8)),
             region: None,
@@ -148,31 +151,31 @@ pub fn truth(name: &str) -> HiddenTruth {
             // back off the patch.
             let (center, half_size) = (Vec2::new(0.5, 0.15), Vec2::new(0.15, 0.08));
             HiddenTruth {
-                effects: vec![Effect::FrictionPatch {
+                effects: vec![Effect::FrictionPatch(FrictionPatch {
                     center,
                     half_size,
                     static_friction: 0.15,
                     kinetic_friction: 0.15,
-                }],
+                })],
                 effect: Some("friction_patch"),
                 parameter: Some(("friction", 0.15)),
                 region: Some((center, half_size)),
             }
         }
         "concealed_heavy" => HiddenTruth {
-            effects: vec![Effect::MassScale {
+            effects: vec![Effect::MassScale(MassScale {
                 object: box_(),
                 factor: HEAVY,
-            }],
+            })],
             effect: Some("mass_error"),
             parameter: Some(("factor", HEAVY)),
             region: None,
         },
         "concealed_weight" => HiddenTruth {
-            effects: vec![Effect::CenterOfMassOffset {
+            effects: vec![Effect::CenterOfMassOffset(CenterOfMassOffset {
                 object: box_(),
                 offset: Vec3::new(0.015, 0.0, 0.0),
-            }],
+            })],
             effect: Some("center_of_mass_offset"),
             parameter: Some(("offset", 0.015)),
             region: None,
@@ -310,7 +313,7 @@ fn assemble(
             end,
         );
     }
-    let model = builtin::panda_pusher()?;
+    let model = scene::panda_pusher()?;
     let mut points = waypoints.to_vec();
     points.push((SECONDS + 0.1, points.last().map_or(PARK, |w| w.1)));
     let trajectory = pusher_trajectory(&model, &points, 30.0)
@@ -336,11 +339,11 @@ pub fn build(name: &str, offset: Pose) -> Result<Scene> {
             &truth_config,
             false,
         )?;
-        let box_id = world.scene.world.shape_id("box").context("no box")?;
-        while world.scene.world.time < strike.t - 0.75 - 1e-6 {
-            world.tick(&[])?;
+        let box_id = world.world().shape_id("box").context("no box")?;
+        while world.world().time < strike.t - 0.75 - 1e-6 {
+            world.predict()?;
         }
-        let w = &world.scene.world;
+        let w = &world.world();
         let centre = w.shape_centroid(box_id).as_dvec3();
         let reach = w
             .shapes
@@ -382,14 +385,14 @@ mod tests {
         let mut world = Tracker::new(scene, config, false).unwrap();
         let ids: Vec<_> = ["box", "box2", "box3"]
             .iter()
-            .map(|n| world.scene.world.shape_id(n).unwrap())
+            .map(|n| world.world().shape_id(n).unwrap())
             .collect();
         let mut out = Vec::new();
         for &t in times {
-            while world.scene.world.time < t - 1e-6 {
-                world.tick(&[]).unwrap();
+            while world.world().time < t - 1e-6 {
+                world.predict().unwrap();
             }
-            let w = &world.scene.world;
+            let w = &world.world();
             out.push([0, 1, 2].map(|i| w.shape_centroid(ids[i])));
         }
         out

@@ -3,7 +3,8 @@
 //! /tf_static, joint states), the ground truth (CSV of object poses) and a replay config.
 
 use super::{build, cameras, model_config, observe, observe_depth_and_labels, truth_config};
-use crate::config::{Config, SceneConfig};
+use crate::config::Config;
+use crate::init::SceneConfig;
 use crate::math::Pose;
 use crate::msgs::{self, JointState, Time};
 use crate::record::{self, RecordingWriter};
@@ -64,26 +65,24 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
     let dt = config.physics.dt as f64;
     let ticks = (opts.seconds / dt).round() as usize;
     let (robot, trajectory) = truth
-        .scene
-        .robot
-        .as_ref()
+        .robot()
         .map(|(r, t)| (r.clone(), t.clone()))
         .context("scenarios have a robot")?;
     let joint_names: Vec<usize> = robot.model.actuated_joints().collect();
     let progress = indicatif::ProgressBar::new(ticks as u64 + 1);
     for k in 0..=ticks {
         if k > 0 {
-            truth.tick(&[])?;
+            truth.predict()?;
         }
         let t = k as f64 * dt;
         let exposure = 1.0 + 0.03 * (t as f32 * 1.7).sin();
-        let images = observe(&truth.scene.world, &cams, opts.noise, exposure, k as u64);
+        let images = observe(truth.world(), &cams, opts.noise, exposure, k as u64);
         if k == 0 {
             // What initialisation from RGB-D starts from: depth and instance masks of the first frame.
             for (i, (c, (depth, labels))) in cams
                 .iter()
                 .zip(observe_depth_and_labels(
-                    &truth.scene.world,
+                    truth.world(),
                     &cams,
                     super::object_names(name),
                 ))
@@ -144,8 +143,8 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
             Time::from_seconds(t),
             &js,
         )?;
-        gt.record(&truth.scene.world)?;
-        gt_particles.record(&truth.scene.world)?;
+        gt.record(truth.world())?;
+        gt_particles.record(truth.world())?;
         progress.inc(1);
     }
     progress.finish_and_clear();

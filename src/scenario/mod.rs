@@ -7,21 +7,18 @@
 use crate::config::Config;
 use crate::math::Pose;
 use crate::physics::Effect;
-use crate::render::{
-    Camera, GaussianCloud, GaussianParams, RenderSettings, Roi, cpu::CpuRenderer, logit,
-};
+use crate::physics::effects::{ConstantForce, ViscousDrag};
+use crate::render::{Camera, GaussianCloud, RenderSettings, Roi, cpu::CpuRenderer, logit, sigmoid};
 use crate::robot::{RobotConfig, RobotInWorld};
-use crate::scene::builtin::{self, Scene, pusher_trajectory};
-use crate::scene::{WorldBuilder, box_lattice};
+use crate::scene::{self, Scene, pusher_trajectory};
 use crate::world::ShapeId;
 use crate::world::World;
+use crate::world::{WorldBuilder, box_lattice};
 use anyhow::{Context, Result, bail};
 
 pub mod concealed;
-pub mod concealed_table;
 pub mod generate;
-pub mod table;
-use glam::{DVec3, Quat, Vec3, Vec4};
+use glam::{DVec3, Quat, Vec3};
 
 pub const NAMES: [&str; 7] = [
     "resting_box",
@@ -88,14 +85,14 @@ pub fn truth_config(name: &str) -> Config {
         // A hidden string drags the box along +y at about 1.7 cm/s (a pull above static friction,
         // balanced by drag), so while the hand hides it the model's prediction goes stale.
         config.physics.effects = vec![
-            Effect::ConstantForce {
+            Effect::ConstantForce(ConstantForce {
                 object: Some("box".into()),
                 force: Vec3::new(0.0, 2.2, 0.0),
-            },
-            Effect::ViscousDrag {
+            }),
+            Effect::ViscousDrag(ViscousDrag {
                 object: Some("box".into()),
                 coefficient: 40.0,
-            },
+            }),
         ];
     }
     config
@@ -124,13 +121,15 @@ fn add_table(b: &mut WorldBuilder) {
             } else {
                 0.2
             };
-            b.add_scene_gaussian(GaussianParams {
-                mean: Vec3::new(0.2 + ix as f32 * 0.01, -0.3 + iy as f32 * 0.01, -0.001),
-                rotation: Vec4::new(0.0, 0.0, 0.0, 1.0),
-                log_scale: Vec3::new(0.006f32.ln(), 0.006f32.ln(), 0.0008f32.ln()),
-                opacity_logit: logit(0.97),
-                colour: Vec3::splat(shade),
-            });
+            // Sizes and opacity through their logarithm and logit, as the renderer stores them.
+            let log_scale = Vec3::new(0.006f32.ln(), 0.006f32.ln(), 0.0008f32.ln());
+            b.add_scene_gaussian(
+                Vec3::new(0.2 + ix as f32 * 0.01, -0.3 + iy as f32 * 0.01, -0.001),
+                Quat::IDENTITY,
+                Vec3::new(log_scale.x.exp(), log_scale.y.exp(), log_scale.z.exp()),
+                sigmoid(logit(0.97)),
+                Vec3::splat(shade),
+            );
         }
     }
 }
@@ -205,7 +204,7 @@ fn add_painted_box(
 fn add_tblock(b: &mut WorldBuilder, rest: Pose, offset: Pose) -> ShapeId {
     let t = b.add_rigid(
         "tblock",
-        &crate::scene::t_block_lattice(0.2, 0.05, 0.03, 2.0 * R),
+        &crate::world::t_block_lattice(0.2, 0.05, 0.03, 2.0 * R),
         R,
         MASS,
         displaced(rest, offset),
@@ -225,7 +224,7 @@ pub fn build(name: &str, offset: Pose) -> Result<Scene> {
     }
     let mut b = WorldBuilder::new();
     add_table(&mut b);
-    let model = builtin::panda_pusher()?;
+    let model = scene::panda_pusher()?;
     let tip = |x: f64, y: f64, z: f64| DVec3::new(x, y, z);
     // Pusher-tip waypoints (time, point); the rod points down.
     let waypoints: Vec<(f64, DVec3)> = match name {
@@ -355,7 +354,7 @@ fn add_rope_tied_to_tip(
         .link_index("panda_pusher")
         .context("no pusher link")?;
     let tip_world = (robot.base * robot.model.forward_kinematics(q0)[link])
-        .transform_point3(builtin::PUSHER_TIP)
+        .transform_point3(scene::PUSHER_TIP)
         .as_vec3();
     let spacing = 2.0 * R;
     let start = Vec3::new(tip_world.x, tip_world.y - spacing, R);
@@ -487,7 +486,8 @@ pub fn observe_depth_and_labels(
     use rayon::prelude::*;
     let p = &world.particles;
     // Per shape: its frame, its cubes' centres and half edges in that frame, and a bounding sphere.
-    let shapes: Vec<(Pose, Vec<(Vec3, f32)>, Vec3, f32, u8)> = (0..world.shapes.len() as u32)
+    type Solid = (Pose, Vec<(Vec3, f32)>, Vec3, f32, u8);
+    let shapes: Vec<Solid> = (0..world.shapes.len() as u32)
         .map(|s| {
             let frame = if world.shapes.kind[s as usize] == crate::world::ShapeKind::Rope {
                 Pose::IDENTITY

@@ -2,13 +2,17 @@
 //! structures of arrays (f32). This module owns the layout and simple queries; it never steps
 //! physics (see `physics`) nor renders (see `render`).
 
+mod builder;
 mod constraints;
 mod gaussians;
+mod lattice;
 mod particles;
 mod shapes;
 
+pub use builder::{BodyGaussian, ObjectModel, WorldBuilder};
 pub use constraints::DistanceConstraints;
 pub use gaussians::{Gaussians, NO_PARENT};
+pub use lattice::{box_lattice, cylinder_lattice, t_block_lattice};
 pub use particles::{Particles, Phase};
 pub use shapes::{ShapeId, ShapeKind, Shapes};
 
@@ -197,7 +201,7 @@ pub fn mass_weighted_mean(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::{WorldBuilder, box_lattice};
+    use crate::world::{WorldBuilder, box_lattice};
 
     #[test]
     fn bonded_gaussians_follow_their_shape_rigidly() {

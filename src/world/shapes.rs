@@ -130,7 +130,7 @@ impl Shapes {
 #[cfg(test)]
 mod tests {
     use crate::math::Pose;
-    use crate::scene::{WorldBuilder, box_lattice};
+    use crate::world::{WorldBuilder, box_lattice};
     use glam::Vec3;
 
     #[test]

@@ -5,9 +5,8 @@
 //!
 //! Owns only the sweep's bookkeeping; the tracking itself is `replay::run`, unchanged.
 
-pub mod plot;
-
 use crate::config::Config;
+use crate::plot;
 use crate::replay::{self, ReplayOptions};
 use crate::scenario::generate::{self, GenerateOptions};
 use anyhow::{Context, Result, bail};
@@ -15,6 +14,9 @@ use glam::Vec3;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+/// Tracking error over time: `(t s, error mm)`.
+type Series = Vec<(f64, f32)>;
 
 pub const START: &str = "<!-- ablation-table:start -->";
 pub const END: &str = "<!-- ablation-table:end -->";
@@ -201,10 +203,10 @@ pub fn run(opts: &SweepOptions, out: &Path) -> Result<Vec<Row>> {
                 ),
             );
         }
-        let mut groups: BTreeMap<&str, Vec<(String, Vec<(f64, f32)>)>> = BTreeMap::new();
+        let mut groups: BTreeMap<&str, Vec<(String, Series)>> = BTreeMap::new();
         // Replay is deterministic: a setting that equals one already run (the defaults appear in
         // every group) reuses its result.
-        let mut done: BTreeMap<String, (Vec<(f64, f32)>, f64)> = BTreeMap::new();
+        let mut done: BTreeMap<String, (Series, f64)> = BTreeMap::new();
         for v in &all {
             let (recording, scene_config) = &recordings[&v.resolution];
             let config = Config {

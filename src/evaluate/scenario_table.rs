@@ -1,10 +1,10 @@
 //! `pegs scenario table`: every scenario generated, replayed in the three modes, summarised as a
 //! Markdown table (the README's table is written by this, never by hand).
 
-use super::{NAMES, generate};
 use crate::config::Config;
 use crate::replay;
-use anyhow::{Context, Result, bail};
+use crate::scenario::{NAMES, generate};
+use anyhow::{Context, Result};
 use std::path::Path;
 
 pub const START: &str = "<!-- scenario-table:start -->";
@@ -36,7 +36,7 @@ pub fn run(out: &Path, width: u32, height: u32) -> Result<String> {
             let c = m.comparison.get(object).cloned().unwrap_or_default();
             rows.push(format!(
                 "| {name} | {} | {object} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} |",
-                super::description(name),
+                crate::scenario::description(name),
                 e.mean_mm,
                 e.p95_mm,
                 e.final_mm,
@@ -47,23 +47,4 @@ pub fn run(out: &Path, width: u32, height: u32) -> Result<String> {
         }
     }
     Ok(rows.join("\n"))
-}
-
-/// Replace the text between the table markers of `path` with `table`.
-pub fn write_into(path: &Path, table: &str) -> Result<()> {
-    write_between(path, START, END, table)
-}
-
-/// Replace the text between the `start` and `end` marker lines of `path` with `text`.
-pub fn write_between(path: &Path, start: &str, end: &str, table: &str) -> Result<()> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let (Some(a), Some(b)) = (text.find(start), text.find(end)) else {
-        bail!("{} has no {start} ... {end} block", path.display())
-    };
-    if b < a {
-        bail!("{}: markers out of order", path.display());
-    }
-    let updated = format!("{}{start}\n{table}\n{}", &text[..a], &text[b..]);
-    std::fs::write(path, updated).with_context(|| format!("cannot write {}", path.display()))
 }

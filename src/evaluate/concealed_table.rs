@@ -1,11 +1,10 @@
 //! `pegs scenario concealed`: every concealed scenario generated, diagnosed and checked against
 //! its hidden truth; the README's table of results is written by this, never by hand.
 
-use super::concealed;
-use super::generate;
 use crate::config::Config;
 use crate::diagnose::report::{ObjectReport, Report};
 use crate::diagnose::{DiagnoseOptions, diagnose};
+use crate::scenario::{concealed, generate};
 use anyhow::{Context, Result};
 use glam::Vec2;
 use serde::Serialize;

@@ -1,11 +1,63 @@
-//! The residual log: per dynamic object and tick, its state, contacts and corrective wrench,
-//! taken from the world after a predict / correct tick.
+//! The residual log: per dynamic object and tick, its state, contacts and the corrective wrench
+//! the visual forces applied, taken from the world after a predict / correct tick (what the
+//! diagnosis explains), and its CSV form (`residuals.csv`).
 
-use super::Sample;
 use crate::correct::CorrectStats;
 use crate::math::rotation_angle_between;
+use crate::tracker::{Observer, Tick};
 use crate::world::{Phase, ShapeId, World};
+use anyhow::{Context, Result};
 use glam::{Mat3, Vec3};
+use serde::Serialize;
+
+/// One object at one tick: its state, its contacts and the corrective wrench the visual forces
+/// applied (force on the object, torque about its centre of mass).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Sample {
+    pub t: f64,
+    pub object: String,
+    /// Centre of mass, m; velocity, m/s; acceleration (finite difference), m/s^2.
+    pub position: Vec3,
+    pub velocity: Vec3,
+    pub acceleration: Vec3,
+    /// Angular velocity about the centre of mass, rad/s.
+    pub angular_velocity: Vec3,
+    /// Modelled mass, kg, and inertia about the vertical axis through the centre of mass, kg m^2.
+    pub mass: f32,
+    pub inertia_z: f32,
+    /// Contacts: with the ground, with a kinematic body (robot) and with another object.
+    pub on_ground: bool,
+    pub touching_robot: bool,
+    pub touching_object: bool,
+    /// The visual forces of this tick, summed: force (N) and torque about the centre of mass (N m).
+    pub force: Vec3,
+    pub torque: Vec3,
+}
+
+/// CSV header of `residuals.csv`.
+pub const CSV_HEADER: &str = "t,object,x,y,z,vx,vy,vz,ax,ay,az,wx,wy,wz,mass,inertia_z,on_ground,touching_robot,touching_object,fx,fy,fz,tx,ty,tz";
+
+impl Sample {
+    pub fn csv_row(&self) -> String {
+        let v = |a: Vec3| format!("{:.6},{:.6},{:.6}", a.x, a.y, a.z);
+        format!(
+            "{:.6},{},{},{},{},{},{:.6},{:.8},{},{},{},{},{}",
+            self.t,
+            self.object,
+            v(self.position),
+            v(self.velocity),
+            v(self.acceleration),
+            v(self.angular_velocity),
+            self.mass,
+            self.inertia_z,
+            self.on_ground as u8,
+            self.touching_robot as u8,
+            self.touching_object as u8,
+            v(self.force),
+            v(self.torque)
+        )
+    }
+}
 
 /// Extra distance (m) within which particles count as touching.
 const CONTACT_SLACK: f32 = 0.001;
@@ -17,7 +69,37 @@ pub struct ResidualLog {
     pub samples: Vec<Sample>,
 }
 
+impl Observer for ResidualLog {
+    fn tick(&mut self, tick: &Tick) -> Result<()> {
+        let physics = tick.tracker.physics();
+        let ground = physics.ground.enabled.then_some((
+            physics.ground.normal.normalize_or(Vec3::Z),
+            physics.ground.height,
+        ));
+        let correction = tick.report.correction.as_ref();
+        self.record(
+            tick.tracker.world(),
+            correction,
+            ground,
+            tick.inputs.time,
+            physics.dt,
+        );
+        Ok(())
+    }
+}
+
 impl ResidualLog {
+    /// `residuals.csv`: a header and one row per sample.
+    pub fn write_csv(&self, path: &std::path::Path) -> Result<()> {
+        let mut csv = String::from(CSV_HEADER);
+        csv.push('\n');
+        for sample in &self.samples {
+            csv += &sample.csv_row();
+            csv.push('\n');
+        }
+        std::fs::write(path, csv).with_context(|| format!("cannot write {}", path.display()))
+    }
+
     /// Log every dynamic shape of `world` after a tick of length `dt` that ended at `t`.
     pub fn record(
         &mut self,
@@ -122,7 +204,7 @@ fn contacts(world: &World, shape: ShapeId, ground: Option<(Vec3, f32)>) -> (bool
 mod tests {
     use super::*;
     use crate::math::Pose;
-    use crate::scene::{WorldBuilder, box_lattice};
+    use crate::world::{WorldBuilder, box_lattice};
 
     #[test]
     fn state_contacts_and_rates_are_logged() {
@@ -194,6 +276,38 @@ mod tests {
         assert_eq!(
             (moved.force, moved.torque),
             (Vec3::new(0.1, 0.0, 0.0), Vec3::new(0.0, 0.0, 0.01))
+        );
+    }
+
+    #[test]
+    fn a_sample_is_one_csv_row_under_the_header() {
+        let s = Sample {
+            t: 1.25,
+            object: "box".into(),
+            position: Vec3::new(0.5, -0.1, 0.025),
+            velocity: Vec3::new(0.01, 0.2, 0.0),
+            acceleration: Vec3::new(0.0, -0.5, 0.0),
+            angular_velocity: Vec3::new(0.0, 0.0, 0.3),
+            mass: 0.36,
+            inertia_z: 0.0005,
+            on_ground: true,
+            touching_robot: false,
+            touching_object: true,
+            force: Vec3::new(0.1, -0.2, 0.05),
+            torque: Vec3::new(0.0, 0.0, -0.001),
+        };
+        assert_eq!(CSV_HEADER.split(',').count(), 25);
+        let row = s.csv_row();
+        let fields: Vec<&str> = row.split(',').collect();
+        assert_eq!(fields.len(), 25, "{row}");
+        let at = |name: &str| fields[CSV_HEADER.split(',').position(|h| h == name).unwrap()];
+        assert_eq!(
+            (at("t"), at("object"), at("vy"), at("touching_object")),
+            ("1.250000", "box", "0.200000", "1")
+        );
+        assert_eq!(
+            (at("fy"), at("tz"), at("inertia_z")),
+            ("-0.200000", "-0.001000", "0.00050000")
         );
     }
 }

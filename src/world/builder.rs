@@ -1,8 +1,32 @@
-//! `WorldBuilder`: adds shapes with contiguous particles and one bonded Gaussian per particle.
+//! `WorldBuilder`: adds shapes with contiguous particles and one bonded Gaussian per particle,
+//! or an `ObjectModel` (an object's particles and Gaussians in its body frame, from a file or
+//! from RGB-D) with its own Gaussians bonded to the nearest particle. It builds; it never steps.
 
 use crate::math::Pose;
 use crate::world::{Phase, ShapeId, ShapeKind, World};
 use glam::{Quat, Vec3};
+
+/// A Gaussian in an object's body frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BodyGaussian {
+    pub mean: Vec3,
+    pub rotation: Quat,
+    /// Standard deviations, m.
+    pub scale: Vec3,
+    pub opacity: f32,
+    /// RGB in [0, 1].
+    pub colour: Vec3,
+}
+
+/// An object as particles and Gaussians in its body frame, with its body-to-world pose.
+#[derive(Clone, Debug)]
+pub struct ObjectModel {
+    pub name: String,
+    pub pose: Pose,
+    /// Body-frame position and radius of each particle.
+    pub particles: Vec<(Vec3, f32)>,
+    pub gaussians: Vec<BodyGaussian>,
+}
 
 /// Gaussian standard deviation relative to the particle radius for builder-made Gaussians.
 const GAUSSIAN_SCALE_PER_RADIUS: f32 = 0.6;
@@ -91,7 +115,7 @@ impl WorldBuilder {
     pub fn add_rigid_model(
         &mut self,
         name: &str,
-        model: &crate::init::ObjectModel,
+        model: &ObjectModel,
         particle_mass: f32,
     ) -> ShapeId {
         let shape = self.world.shapes.len() as ShapeId;
@@ -252,23 +276,19 @@ impl WorldBuilder {
         }
     }
 
-    /// A Gaussian of the static scene (table, walls): world frame, no parent particle.
-    pub fn add_scene_gaussian(&mut self, g: crate::render::GaussianParams) {
-        let q = glam::Quat::from_xyzw(g.rotation.x, g.rotation.y, g.rotation.z, g.rotation.w)
-            .normalize();
-        let scale = Vec3::new(
-            g.log_scale.x.exp(),
-            g.log_scale.y.exp(),
-            g.log_scale.z.exp(),
-        );
-        self.world.gaussians.push(
-            crate::world::NO_PARENT,
-            g.mean,
-            q,
-            scale,
-            crate::render::sigmoid(g.opacity_logit),
-            g.colour,
-        );
+    /// A Gaussian of the static scene (table, walls): world frame, no parent particle; scale as
+    /// standard deviations (m), opacity in (0, 1).
+    pub fn add_scene_gaussian(
+        &mut self,
+        mean: Vec3,
+        rotation: Quat,
+        scale: Vec3,
+        opacity: f32,
+        colour: Vec3,
+    ) {
+        self.world
+            .gaussians
+            .push(super::NO_PARENT, mean, rotation, scale, opacity, colour);
     }
 
     /// Recolour the Gaussians of `shape` whose parent's rest position `paint` maps to a colour.

@@ -1,12 +1,20 @@
-//! The tracked states of a replay, kept so that the physics can be rerun open loop from any of
-//! them: start from the tracked state at `t`, let the physics alone (with or without an extra
-//! effect) predict the next second, and compare with where tracking found the object.
+//! What a replay keeps of its run for the diagnosis: the tracked state after every tick, the
+//! robot's recorded trajectory and the residuals (`residuals`: each object's state, contacts and
+//! corrective wrench per tick). The physics can be rerun open loop from any tracked state: start
+//! from the state at `t`, let the physics alone (with or without an extra effect) predict the next
+//! second, and compare with where tracking found the object. It records and predicts; it never
+//! corrects and never judges.
 
-use crate::config::PhysicsConfig;
+pub mod residuals;
+
+pub use residuals::Sample;
+
 use crate::math::Pose;
+use crate::physics::PhysicsConfig;
 use crate::physics::Solver;
 use crate::robot::{JointTrajectory, RobotInWorld};
-use crate::scene::builtin::Scene;
+use crate::scene::Scene;
+use crate::tracker::{Observer, Tick, Tracker};
 use crate::world::{ShapeId, World};
 use anyhow::{Context, Result};
 use glam::Vec3;
@@ -35,14 +43,61 @@ impl State {
     }
 }
 
-/// A replay's world layout, the physics it ran, the robot's recorded motion and the tracked state
-/// after every tick (`states[0]` is the initial state).
+/// A replay's world layout, the physics it ran, the robot with its recorded motion, the tracked
+/// state after every tick (`states[0]` is the initial state) and the residuals of every object
+/// per tick.
 #[derive(Clone, Debug, Default)]
 pub struct Trace {
     pub base: World,
     pub physics: PhysicsConfig,
     pub robot: Option<(RobotInWorld, JointTrajectory)>,
     pub states: Vec<State>,
+    pub samples: Vec<Sample>,
+}
+
+/// Keeps a trace of a tracking run, as an observer of its ticks: the world and physics at the
+/// start, the tracked state after every tick, and the robot's trajectory as recorded (every joint
+/// sample the ticks received; the scene's own trajectory if none came).
+#[derive(Default)]
+pub struct Recorder {
+    trace: Trace,
+    recorded: JointTrajectory,
+}
+
+impl Observer for Recorder {
+    fn start(&mut self, tracker: &Tracker) -> Result<()> {
+        let world = tracker.world();
+        self.trace = Trace {
+            base: world.clone(),
+            physics: tracker.physics().clone(),
+            robot: tracker.robot().map(|(r, t)| (r.clone(), t.clone())),
+            states: vec![State::of(world)],
+            samples: Vec::new(),
+        };
+        Ok(())
+    }
+
+    fn tick(&mut self, tick: &Tick) -> Result<()> {
+        self.trace.states.push(State::of(tick.tracker.world()));
+        for (t, q) in &tick.inputs.joint_samples {
+            self.recorded.push(*t, q.clone());
+        }
+        Ok(())
+    }
+}
+
+impl Recorder {
+    /// The trace, with the residuals logged over the same run.
+    pub fn finish(self, samples: Vec<Sample>) -> Trace {
+        let mut trace = self.trace;
+        if let Some((_, trajectory)) = &mut trace.robot
+            && !self.recorded.is_empty()
+        {
+            *trajectory = self.recorded;
+        }
+        trace.samples = samples;
+        trace
+    }
 }
 
 /// An open-loop prediction from one tracked state.
@@ -152,7 +207,7 @@ impl Trace {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::{WorldBuilder, box_lattice};
+    use crate::world::{WorldBuilder, box_lattice};
 
     /// A box sliding on the ground, traced by the physics itself: open-loop predictions with the
     /// same physics reproduce the trace; with extra drag they fall short.
@@ -179,6 +234,7 @@ mod tests {
             physics: physics.clone(),
             robot: None,
             states: vec![State::of(&world)],
+            samples: Vec::new(),
         };
         let mut solver = Solver::new(physics.clone(), &world).unwrap();
         for _ in 0..45 {
@@ -194,10 +250,12 @@ mod tests {
             same.iter().map(|p| p.error).collect::<Vec<_>>()
         );
         let mut dragged = physics.clone();
-        dragged.effects = vec![crate::physics::Effect::ViscousDrag {
-            object: None,
-            coefficient: 0.1,
-        }];
+        dragged.effects = vec![crate::physics::Effect::ViscousDrag(
+            crate::physics::effects::ViscousDrag {
+                object: None,
+                coefficient: 0.1,
+            },
+        )];
         let short = trace.predict(&dragged, s, &[3], 30).unwrap();
         // The drag shortens the slide: the prediction ends behind the traced box.
         assert!(

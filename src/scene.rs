@@ -1,14 +1,13 @@
 //! Built-in scenes: the demo's tabletop and the benchmark scenes. A `Scene` is a world plus
 //! scripted motions for its kinematic shapes (pose as a function of time).
 
-use super::{WorldBuilder, box_lattice, t_block_lattice};
 use crate::math::Pose;
 use crate::physics::Solver;
 use crate::robot::ik::{self, IkGoal};
 use crate::robot::{
     GeometrySource, JointTrajectory, PackagePaths, RobotConfig, RobotInWorld, RobotModel,
 };
-use crate::world::{ShapeId, World};
+use crate::world::{ShapeId, World, WorldBuilder, box_lattice, t_block_lattice};
 use anyhow::{Context, Result};
 use glam::{DVec3, Quat, Vec3};
 
@@ -43,7 +42,7 @@ impl Scene {
 /// The bundled Panda with its rod pusher (primitive geometry, so it needs no mesh files).
 pub fn panda_pusher() -> Result<RobotModel> {
     RobotModel::parse(
-        include_str!("../../urdf/panda_pusher.urdf"),
+        include_str!("../urdf/panda_pusher.urdf"),
         std::path::Path::new("."),
         &PackagePaths::default(),
         GeometrySource::Collision,

@@ -1,0 +1,133 @@
+//! `pegs diagnose`: locate, name, model, show (see the module docs). One pass per file:
+//!
+//! - `study`: per object, the windows its open-loop predictions are judged on, every family
+//!   fitted on them, and the one named;
+//! - `refine`: the named effects fitted again on a replay tracked with them, and objects whose
+//!   mismatches another object's effect explains;
+//! - `show`: the replay with the augmented model, before / after outcomes, plots and the report.
+
+mod refine;
+mod show;
+mod study;
+
+use super::report::Report;
+use crate::config::{Config, ModelFile};
+use crate::replay::{self, Metrics, ReplayOptions};
+use crate::trace::Trace;
+use anyhow::{Context, Result};
+use std::path::Path;
+
+#[derive(Clone, Copy, Debug)]
+pub struct DiagnoseOptions {
+    /// Open-loop prediction horizon, s.
+    pub horizon: f64,
+    /// Fraction of the recording (in time) used for fitting; the rest is held out.
+    pub train_fraction: f64,
+    /// A family is named only if it removes at least this fraction of the squared open-loop
+    /// error on both the fitting and the held-out windows.
+    pub min_gain: f64,
+    /// Seconds at the start while tracking converges onto the start pose; not used.
+    pub settle: f64,
+    pub progress: bool,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        Self {
+            horizon: 1.0,
+            train_fraction: 0.7,
+            min_gain: 0.3,
+            settle: 0.5,
+            progress: true,
+        }
+    }
+}
+
+/// What every object's study shares: the horizon of the open-loop predictions (ticks), where
+/// fitting ends and the held-out part begins, and the options.
+struct Plan {
+    horizon: usize,
+    t_first: f64,
+    cut: f64,
+    opts: DiagnoseOptions,
+}
+
+impl Plan {
+    fn new(trace: &Trace, opts: DiagnoseOptions) -> Self {
+        let t_first = trace.states.first().map_or(0.0, |s| s.time);
+        let t_last = trace.states.last().map_or(0.0, |s| s.time);
+        Self {
+            horizon: (opts.horizon / trace.dt()).round().max(1.0) as usize,
+            t_first,
+            cut: t_first + opts.train_fraction * (t_last - t_first),
+            opts,
+        }
+    }
+
+    fn say(&self, line: String) {
+        if self.opts.progress {
+            eprintln!("{line}");
+        }
+    }
+}
+
+/// Replay `recording` with `config` into `out`, keeping the trace.
+fn traced_replay(recording: &Path, config: &Config, out: &Path, plan: &Plan) -> Result<Metrics> {
+    let opts = ReplayOptions {
+        progress: plan.opts.progress,
+        capture: true,
+        ..Default::default()
+    };
+    replay::run(recording, config, out, opts)
+}
+
+/// Replay `recording` with `config`, find what physics the model misses and write `out/report.md`,
+/// `out/report.json`, `out/model.yaml`, plots and the replays (`out/before`, `out/named`,
+/// `out/after`).
+pub fn diagnose(
+    recording: &Path,
+    config: &Config,
+    out: &Path,
+    opts: DiagnoseOptions,
+) -> Result<Report> {
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    if opts.progress {
+        eprintln!("replaying with the current model");
+    }
+    let quiet = Plan {
+        horizon: 1,
+        t_first: 0.0,
+        cut: 0.0,
+        opts,
+    };
+    let before = traced_replay(recording, config, &out.join("before"), &quiet)?;
+    let trace = before.trace.as_ref().context("replay kept no trace")?;
+    let plan = Plan::new(trace, opts);
+    // Every object is located first: an effect of one may show in another's motion (a box
+    // struck by one heavier than modelled slides further than predicted).
+    let objects = study::locate_all(trace, &plan)?;
+    let mut studies = Vec::new();
+    for object in &objects {
+        studies.push(study::study(trace, &plan, object, &objects)?);
+    }
+    study::one_mass_change(&mut studies);
+    let effects = refine::refine_named(recording, config, out, &plan, &mut studies)?;
+    let model = ModelFile {
+        source: format!("pegs diagnose {}", recording.display()),
+        effects,
+    };
+    let model_path = out.join("model.yaml");
+    model.save(&model_path)?;
+    refine::explain_by_others(trace, &model, &mut studies)?;
+    let after = show::replay_after(recording, config, out, &plan, &model)?;
+    show::report(
+        out,
+        recording,
+        &model_path,
+        trace,
+        &plan,
+        &before,
+        after.as_ref(),
+        studies,
+    )
+}

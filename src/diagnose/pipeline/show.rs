@@ -1,0 +1,232 @@
+//! Show: replay with the augmented model (`out/after`), the held-out outcomes before and after,
+//! each object's short-horizon errors (CSV) and plots, and the report (`report.json`,
+//! `report.md`).
+
+use super::study::Study;
+use super::{Plan, traced_replay};
+use crate::config::{Config, ModelFile};
+use crate::diagnose::candidates;
+use crate::diagnose::plots;
+use crate::diagnose::report::{ObjectReport, Outcome, Parameter, Report};
+use crate::diagnose::select::{self, SelectOptions};
+use crate::replay::Metrics;
+use crate::trace::{Prediction, Sample, Trace};
+use anyhow::{Context, Result};
+use std::path::Path;
+
+/// The replay with the augmented model, if the model adds anything.
+pub fn replay_after(
+    recording: &Path,
+    config: &Config,
+    out: &Path,
+    plan: &Plan,
+    model: &ModelFile,
+) -> Result<Option<Metrics>> {
+    if model.effects.is_empty() {
+        return Ok(None);
+    }
+    plan.say(format!(
+        "replaying with the augmented model ({} effect(s))",
+        model.effects.len()
+    ));
+    traced_replay(recording, &model.apply(config), &out.join("after"), plan).map(Some)
+}
+
+/// Outcomes, plots and the report of every study.
+#[allow(clippy::too_many_arguments)]
+pub fn report(
+    out: &Path,
+    recording: &Path,
+    model_path: &Path,
+    trace: &Trace,
+    plan: &Plan,
+    before: &Metrics,
+    after: Option<&Metrics>,
+    studies: Vec<Study>,
+) -> Result<Report> {
+    let cut = plan.cut;
+    let mut objects = Vec::new();
+    for study in studies {
+        let outcome_before = outcome(
+            &study.base_heldout,
+            &study.samples,
+            before,
+            &study.name,
+            cut,
+        );
+        let (outcome_after, after_heldout) = match after {
+            Some(run) => {
+                let t = run.trace.as_ref().context("replay kept no trace")?;
+                let p = t.predict(&t.physics, study.shape, &study.heldout, plan.horizon)?;
+                let mine: Vec<Sample> = t
+                    .samples
+                    .iter()
+                    .filter(|s| s.object == study.name)
+                    .cloned()
+                    .collect();
+                (outcome(&p, &mine, run, &study.name, cut), p)
+            }
+            None => (outcome_before.clone(), study.base_heldout.clone()),
+        };
+        write_object(out, trace, &study, cut, &after_heldout)?;
+        objects.push(object_report(
+            study,
+            outcome_before,
+            outcome_after,
+            cut,
+            plan.opts.train_fraction,
+        ));
+    }
+    let report = Report::new(
+        recording.display().to_string(),
+        model_path.display().to_string(),
+        objects,
+    );
+    let json = serde_json::to_string_pretty(&report)?;
+    std::fs::write(out.join("report.json"), json)?;
+    std::fs::write(out.join("report.md"), report.markdown())?;
+    Ok(report)
+}
+
+/// The object's short-horizon errors (`<object>_short_horizon_errors.csv`) and its plots of the
+/// residual over time, the residual against the named effect's feature, and the open-loop paths.
+fn write_object(
+    out: &Path,
+    trace: &Trace,
+    study: &Study,
+    cut: f64,
+    after_heldout: &[Prediction],
+) -> Result<()> {
+    let mut csv = String::from("t,error_mm\n");
+    for (t, e) in &study.located.errors {
+        csv += &format!("{t:.4},{:.3}\n", e * 1e3);
+    }
+    std::fs::write(
+        out.join(format!("{}_short_horizon_errors.csv", study.name)),
+        csv,
+    )?;
+    let plot = |kind: &str| out.join(format!("{}_{kind}.png", study.name));
+    plots::residual_over_time(&plot("residual"), &study.samples, &study.located, cut)?;
+    let family = study.chosen.as_ref().and_then(|f| f.family);
+    plots::residual_vs_feature(&plot("feature"), &study.samples, family, &study.setting)?;
+    plots::paths(
+        &plot("paths"),
+        trace,
+        study.shape,
+        cut,
+        &study.base_heldout,
+        after_heldout,
+    )
+}
+
+/// Held-out metrics of one replay: open-loop error of `predictions`, mean corrective force of the
+/// object's samples after `cut`, tracking error after `cut` if there is ground truth.
+fn outcome(
+    predictions: &[Prediction],
+    samples: &[Sample],
+    run: &Metrics,
+    object: &str,
+    cut: f64,
+) -> Outcome {
+    let held: Vec<&Sample> = samples.iter().filter(|s| s.t >= cut).collect();
+    let tracking: Option<Vec<f32>> = run
+        .error_series
+        .get(object)
+        .map(|s| s.iter().filter(|e| e.0 >= cut).map(|e| e.1).collect());
+    Outcome {
+        open_loop_error_mm: predictions.iter().map(|p| p.error).sum::<f32>()
+            / predictions.len().max(1) as f32
+            * 1e3,
+        open_loop_windows: predictions.len(),
+        corrective_effort_n: held.iter().map(|s| s.force.length()).sum::<f32>()
+            / held.len().max(1) as f32,
+        tracking_error_mm: tracking
+            .filter(|e| !e.is_empty())
+            .map(|e| e.iter().sum::<f32>() / e.len() as f32 * 1e3),
+    }
+}
+
+fn object_report(
+    study: Study,
+    before: Outcome,
+    after: Outcome,
+    cut: f64,
+    train_fraction: f64,
+) -> ObjectReport {
+    let mut parameters = Vec::new();
+    let mut residual_explained_fraction = None;
+    if let Some(f) = &study.chosen {
+        parameters.push(Parameter {
+            name: f.parameter.clone(),
+            value: f.value,
+            low: Some(f.low),
+            high: Some(f.high),
+            unit: f.unit.clone(),
+        });
+        if let Some(family) = f.family {
+            let extras = family.report(&study.setting, f.value, f.effect_term.as_ref());
+            parameters.extend(extras.into_iter().map(|(name, value, unit)| Parameter {
+                name: name.into(),
+                value,
+                low: None,
+                high: None,
+                unit: unit.into(),
+            }));
+        }
+        if let Some(c) = f
+            .family
+            .and_then(|family| family.regression())
+            .and_then(candidates::Candidate::from_name)
+        {
+            let single = select::select(
+                &study.samples,
+                &[c],
+                SelectOptions {
+                    train_fraction,
+                    min_gain: f64::NEG_INFINITY,
+                    min_t: 0.0,
+                },
+            );
+            residual_explained_fraction = single.found.first().map(|x| x.explained_fraction);
+        }
+    }
+    ObjectReport {
+        object: study.name,
+        locate_threshold_mm: study.located.threshold * 1e3,
+        // Deviations no effect explains are listed apart: they are not missing physics.
+        unexplained: study
+            .located
+            .windows
+            .iter()
+            .filter(|w| {
+                !study
+                    .explained
+                    .iter()
+                    .any(|e| e.t_start < w.t_end && w.t_start < e.t_end)
+            })
+            .cloned()
+            .collect(),
+        mismatch: study.explained,
+        explained_by: study.explained_by,
+        effect: study
+            .chosen
+            .as_ref()
+            .map_or("none".into(), |f| f.effect.clone()),
+        parameters,
+        // How much the effect explains is judged where it was named.
+        explained_fraction: study
+            .refined_from
+            .as_ref()
+            .or(study.chosen.as_ref())
+            .map_or(0.0, |f| f.heldout_gain()),
+        named_fit: study.refined_from,
+        residual_explained_fraction,
+        heldout_from: cut,
+        train_windows: study.train.len(),
+        heldout_windows: study.heldout.len(),
+        candidates: study.fits,
+        regression: study.regression,
+        before,
+        after,
+    }
+}

@@ -1,0 +1,203 @@
+//! `/diagnostics` from the tick thread, once per `node.diagnostics_period`: the tick's timing,
+//! every camera's state (ERROR when it never sent an image, stopped, or was left out at start),
+//! the inputs refused so far, and whether tracking sees anything.
+
+use super::node::RunStats;
+use super::rss_mb;
+use super::subscribe::Shared;
+use crate::inputs::TickInputs;
+use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue};
+
+/// What the ticks since the last diagnostics measured.
+#[derive(Default)]
+pub struct Window {
+    pub ticks: usize,
+    pub tick_ms: Vec<f64>,
+    pub loss: f64,
+    pub force: f64,
+    pub no_views: usize,
+    /// The visual-force gain the last tick corrected with.
+    pub gain: f32,
+}
+
+fn kv(key: &str, value: impl ToString) -> KeyValue {
+    KeyValue {
+        key: key.into(),
+        value: value.to_string(),
+    }
+}
+
+fn status(
+    level: u8,
+    name: String,
+    message: String,
+    hardware_id: &str,
+    values: Vec<KeyValue>,
+) -> DiagnosticStatus {
+    DiagnosticStatus {
+        level,
+        name,
+        message,
+        hardware_id: hardware_id.into(),
+        values,
+    }
+}
+
+/// The diagnostics after the tick whose inputs were `tick` (None before tracking starts).
+pub fn diagnostics(
+    header: &Header,
+    s: &Shared,
+    tick: &TickInputs,
+    window: &Window,
+    stats: &RunStats,
+    dt: f64,
+) -> Option<DiagnosticArray> {
+    s.inputs.as_ref()?;
+    let mut all = vec![tick_status(window, stats, dt)];
+    all.extend(camera_statuses(s, tick));
+    all.push(inputs_status(s));
+    all.push(tracking_status(tick, window));
+    Some(DiagnosticArray {
+        header: header.clone(),
+        status: all,
+    })
+}
+
+fn tick_status(window: &Window, stats: &RunStats, dt: f64) -> DiagnosticStatus {
+    let mean_ms = window.tick_ms.iter().sum::<f64>() / window.ticks.max(1) as f64;
+    let on_time = mean_ms <= dt * 1e3;
+    let (level, message) = match on_time {
+        true => (DiagnosticStatus::OK, "on time".into()),
+        false => (
+            DiagnosticStatus::WARN,
+            format!("ticks take {mean_ms:.1} ms of {:.1} ms", dt * 1e3),
+        ),
+    };
+    let values = vec![
+        kv("tick_ms_mean", format!("{mean_ms:.2}")),
+        kv("ticks", stats.ticks),
+        kv("overruns", stats.overruns),
+        kv("skipped_ticks", stats.skipped_ticks),
+        kv("dropped_outputs", stats.dropped_outputs),
+        kv("rss_mb", format!("{:.1}", rss_mb())),
+    ];
+    status(level, "pegs: tick".into(), message, "pegs", values)
+}
+
+fn camera_statuses(s: &Shared, tick: &TickInputs) -> Vec<DiagnosticStatus> {
+    let Some(inputs) = &s.inputs else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for feed in &inputs.cameras {
+        let age = tick
+            .ages
+            .iter()
+            .find(|(n, _)| *n == feed.name)
+            .and_then(|(_, a)| *a);
+        let stale = tick.stale.contains(&feed.name);
+        let (level, message) = match age {
+            None => (DiagnosticStatus::ERROR, "no image received".to_string()),
+            Some(a) if stale => (
+                DiagnosticStatus::ERROR,
+                format!(
+                    "stopped publishing: newest image is {a:.2} s old; tracking with the other cameras"
+                ),
+            ),
+            Some(_) if feed.rejected > 0 => (
+                DiagnosticStatus::WARN,
+                format!("{} image(s) rejected", feed.rejected),
+            ),
+            Some(_) => (DiagnosticStatus::OK, "ok".into()),
+        };
+        let values = vec![
+            kv("age_s", age.map_or("none".into(), |a| format!("{a:.3}"))),
+            kv("accepted", feed.accepted),
+            kv("rejected", feed.rejected),
+        ];
+        out.push(status(
+            level,
+            format!("pegs: camera {}", feed.name),
+            message,
+            &feed.name,
+            values,
+        ));
+    }
+    for (name, why) in &s.unused_cameras {
+        let message = format!("not used: {why} when tracking started");
+        out.push(status(
+            DiagnosticStatus::ERROR,
+            format!("pegs: camera {name}"),
+            message,
+            name,
+            vec![],
+        ));
+    }
+    for (name, why) in &s.bad_camera_info {
+        if !inputs.cameras.iter().any(|f| &f.name == name) || why.contains("changed") {
+            let message = format!("CameraInfo problem: {why}");
+            out.push(status(
+                DiagnosticStatus::ERROR,
+                format!("pegs: camera {name}"),
+                message,
+                name,
+                vec![],
+            ));
+        }
+    }
+    out
+}
+
+fn inputs_status(s: &Shared) -> DiagnosticStatus {
+    let Some(inputs) = &s.inputs else {
+        return status(
+            DiagnosticStatus::OK,
+            "pegs: inputs".into(),
+            String::new(),
+            "pegs",
+            vec![],
+        );
+    };
+    let rejected: usize =
+        inputs.rejections.values().sum::<usize>() + s.malformed.values().sum::<usize>();
+    let mut values: Vec<KeyValue> = inputs.rejections.iter().map(|(k, v)| kv(k, v)).collect();
+    values.extend(
+        s.malformed
+            .iter()
+            .map(|(topic, v)| kv(&format!("malformed {topic}"), v)),
+    );
+    values.push(kv(
+        "joint_states_rejected",
+        inputs.log.joint_states_rejected,
+    ));
+    let unknown: Vec<String> = inputs.log.unknown_joints.iter().cloned().collect();
+    values.push(kv("unknown_joints", unknown.join(",")));
+    let level = match rejected > 0 || !unknown.is_empty() {
+        true => DiagnosticStatus::WARN,
+        false => DiagnosticStatus::OK,
+    };
+    let message = match rejected {
+        0 => "all messages accepted".into(),
+        n => format!("{n} message(s) rejected so far"),
+    };
+    status(level, "pegs: inputs".into(), message, "pegs", values)
+}
+
+fn tracking_status(tick: &TickInputs, window: &Window) -> DiagnosticStatus {
+    let n = window.ticks.max(1) as f64;
+    let (level, message) = if window.no_views as f64 >= n {
+        (
+            DiagnosticStatus::ERROR,
+            "no usable camera: prediction only".to_string(),
+        )
+    } else {
+        (DiagnosticStatus::OK, "tracking".to_string())
+    };
+    let values = vec![
+        kv("cameras_used", tick.images.len()),
+        kv("photometric_loss", format!("{:.6}", window.loss / n)),
+        kv("visual_force_n", format!("{:.4}", window.force / n)),
+        kv("gain", window.gain),
+    ];
+    status(level, "pegs: tracking".into(), message, "pegs", values)
+}

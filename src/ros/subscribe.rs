@@ -1,0 +1,316 @@
+//! Topics in: one task per subscription hands each message to the state it shares with the tick
+//! thread. Before tracking starts, the newest image, depth, mask and joint state of each source
+//! are kept for initialisation; afterwards images and joint states go to `Inputs`, which checks
+//! them. A message that cannot be decoded is counted and logged; nothing a publisher sends stops
+//! a task.
+
+use super::{log, now};
+use crate::inputs::Inputs;
+use crate::math::Pose;
+use crate::msgs::{CameraInfo, Image, JointState, TfMessage};
+use crate::topics::NodeConfig;
+use anyhow::{Result, anyhow};
+use futures::StreamExt;
+use glam::{Quat, Vec3};
+use ros2_client::dds::rustdds::{self, TopicKind, policy::ResourceLimits};
+use ros2_client::qos::{Durability, History, Reliability, WhenFull};
+use ros2_client::{Context, MessageTypeName, Name, Node, NodeName, QosProfile};
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// Everything the subscriptions have delivered, shared with the tick thread (held briefly).
+#[derive(Default)]
+pub struct Shared {
+    pub infos: BTreeMap<String, CameraInfo>,
+    /// Camera name -> world-to-camera pose, from /tf_static.
+    pub camera_poses: BTreeMap<String, Pose>,
+    /// Before the tracker starts: the newest image, depth and mask of each camera (for init).
+    pub first_images: BTreeMap<String, Image>,
+    pub first_depth: BTreeMap<String, Image>,
+    pub first_masks: BTreeMap<String, Image>,
+    pub last_joint_state: Option<JointState>,
+    pub inputs: Option<Inputs>,
+    pub malformed: BTreeMap<String, usize>,
+    pub bad_camera_info: BTreeMap<String, String>,
+    /// Configured cameras left out at start, with the reason.
+    pub unused_cameras: BTreeMap<String, String>,
+}
+
+pub fn topic_name(full: &str) -> Result<Name> {
+    Name::parse(full).map_err(|e| anyhow!("bad topic name '{full}': {e:?}"))
+}
+
+pub fn sensor_qos() -> QosProfile {
+    QosProfile::subscription_default()
+        .reliability(Reliability::BestEffort)
+        .history(History::KeepLast { depth: 2 })
+}
+
+pub fn state_qos(depth: usize) -> QosProfile {
+    QosProfile::publisher_default()
+        .reliability(Reliability::Reliable {
+            when_full: WhenFull::Wait(Duration::from_millis(5)),
+        })
+        .history(History::KeepLast { depth })
+}
+
+fn latched_qos() -> QosProfile {
+    state_qos(100).durability(Durability::TransientLocal)
+}
+
+impl Shared {
+    fn on_image(&mut self, camera: &str, img: Image) {
+        match &mut self.inputs {
+            Some(inputs) => {
+                if let Some(k) = inputs.camera_index(camera) {
+                    let _ = inputs.offer_image(k, &img, now());
+                }
+            }
+            None => {
+                self.first_images.insert(camera.to_string(), img);
+            }
+        }
+    }
+
+    /// The first valid CameraInfo of each camera; a change once tracking runs is reported and
+    /// ignored.
+    fn on_camera_info(&mut self, c: &str, info: CameraInfo) {
+        let k = info.k;
+        if !(k[0] > 0.0 && k[4] > 0.0 && k.iter().all(|v| v.is_finite()))
+            || info.width == 0
+            || info.height == 0
+        {
+            let why = format!(
+                "fx {} fy {} size {}x{}",
+                k[0], k[4], info.width, info.height
+            );
+            if self.bad_camera_info.insert(c.to_string(), why).is_none() {
+                log(&format!(
+                    "camera {c}: invalid CameraInfo (fx {}, fy {}, {}x{}); ignored",
+                    k[0], k[4], info.width, info.height
+                ));
+            }
+            return;
+        }
+        let running = self.inputs.is_some();
+        match self.infos.get(c) {
+            Some(old)
+                if (old.width, old.height, old.k) != (info.width, info.height, info.k)
+                    && running =>
+            {
+                let changed = "changed while running".to_string();
+                if self
+                    .bad_camera_info
+                    .insert(c.to_string(), changed)
+                    .is_none()
+                {
+                    log(&format!(
+                        "camera {c}: CameraInfo changed while running; keeping the first (restart the node to use the new one)"
+                    ));
+                }
+            }
+            Some(_) if running => {}
+            _ => {
+                self.infos.insert(c.to_string(), info);
+            }
+        }
+    }
+
+    fn on_joint_state(&mut self, js: JointState) {
+        match &mut self.inputs {
+            Some(inputs) => {
+                let _ = inputs.offer_joint_state(&js, now());
+            }
+            None => self.last_joint_state = Some(js),
+        }
+    }
+
+    /// Camera poses from `world` -> optical frame transforms (`frames`: optical frame -> camera).
+    fn on_tf_static(&mut self, frames: &BTreeMap<String, String>, world: &str, tf: TfMessage) {
+        for t in tf.transforms {
+            let Some(cam) = frames.get(&t.child_frame_id) else {
+                continue;
+            };
+            if t.header.frame_id != world {
+                log(&format!(
+                    "/tf_static {} -> {}: only transforms from '{world}' are used",
+                    t.header.frame_id, t.child_frame_id
+                ));
+                continue;
+            }
+            let (p, q) = (t.transform.translation, t.transform.rotation);
+            let values = [p.x, p.y, p.z, q.x, q.y, q.z, q.w];
+            let norm = (q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w).sqrt();
+            if values.iter().any(|v| !v.is_finite()) || !(0.5..2.0).contains(&norm) {
+                log(&format!(
+                    "/tf_static {}: not a valid transform; ignored",
+                    t.child_frame_id
+                ));
+                continue;
+            }
+            let camera_to_world = Pose::new(
+                Vec3::new(p.x as f32, p.y as f32, p.z as f32),
+                Quat::from_xyzw(q.x as f32, q.y as f32, q.z as f32, q.w as f32).normalize(),
+            );
+            self.camera_poses
+                .insert(cam.clone(), camera_to_world.inverse());
+        }
+    }
+}
+
+/// Creates subscription topics whose receive cache holds no more samples than the history depth.
+/// ros2-client's QoS profiles carry no resource limits, and without them RustDDS keeps up to 64
+/// samples per topic whatever the depth: 64 images per camera, and for topics that publish
+/// rarely (depth and masks, once per recording loop) a cache that fills for minutes, which is
+/// the memory growth a long run showed.
+struct Subscriber<'a> {
+    context: &'a Context,
+    node_name: &'a NodeName,
+    node: &'a mut Node,
+    shared: Arc<Mutex<Shared>>,
+}
+
+impl Subscriber<'_> {
+    fn create_topic(
+        &self,
+        name: &str,
+        type_name: MessageTypeName,
+        qos: &QosProfile,
+    ) -> Result<rustdds::Topic> {
+        let mut policies = rustdds::QosPolicies::from(qos);
+        if let History::KeepLast { depth } = qos.history {
+            let depth = depth as i32;
+            let limits = rustdds::QosPolicyBuilder::new()
+                .resource_limits(ResourceLimits {
+                    max_samples: depth,
+                    max_instances: 1,
+                    max_samples_per_instance: depth,
+                })
+                .build();
+            policies = policies.modify_by(&limits);
+        }
+        let dds_name = topic_name(name)?.to_dds_name("rt", self.node_name, "");
+        self.context
+            .domain_participant()
+            .create_topic(
+                dds_name,
+                type_name.dds_msg_type(),
+                &policies,
+                TopicKind::NoKey,
+            )
+            .map_err(|e| anyhow!("topic {name}: {e:?}"))
+    }
+
+    /// Subscribe to `name` (`package/ty`) and hand every message to `handle` on the shared state.
+    fn subscribe<T: 'static + serde::de::DeserializeOwned + Send + Sync>(
+        &mut self,
+        name: &str,
+        (package, ty): (&str, &str),
+        qos: QosProfile,
+        handle: impl Fn(&mut Shared, T) + Send + 'static,
+    ) -> Result<()> {
+        let topic = self.create_topic(name, MessageTypeName::new(package, ty), &qos)?;
+        let subscription = self
+            .node
+            .create_subscription::<T>(&topic, None)
+            .map_err(|e| anyhow!("subscription {name}: {e:?}"))?;
+        let (name, shared) = (name.to_string(), self.shared.clone());
+        tokio::spawn(async move {
+            let stream = subscription.async_stream();
+            tokio::pin!(stream);
+            while let Some(item) = stream.next().await {
+                let Ok(mut s) = shared.lock() else { return };
+                match item {
+                    Ok((msg, _info)) => handle(&mut s, msg),
+                    Err(e) => {
+                        let n = s.malformed.entry(name.clone()).or_insert(0);
+                        *n += 1;
+                        if *n <= 5 {
+                            log(&format!("{name}: malformed message ({e:?}); ignored"));
+                        }
+                    }
+                }
+            }
+        });
+        Ok(())
+    }
+}
+
+const IMAGE: (&str, &str) = ("sensor_msgs", "Image");
+
+/// One task per subscription: every camera's image, CameraInfo, depth and mask, the joint states
+/// and /tf_static.
+pub fn subscribe(
+    context: &Context,
+    node_name: &NodeName,
+    node: &mut Node,
+    nc: &NodeConfig,
+    shared: Arc<Mutex<Shared>>,
+) -> Result<()> {
+    let mut s = Subscriber {
+        context,
+        node_name,
+        node,
+        shared,
+    };
+    for cam in nc.cameras.clone() {
+        let topic = |template: &str| NodeConfig::for_camera(template, &cam);
+        let c = cam.clone();
+        s.subscribe(
+            &topic(&nc.image_topic),
+            IMAGE,
+            sensor_qos(),
+            move |s, img| s.on_image(&c, img),
+        )?;
+        let c = cam.clone();
+        let info_qos = state_qos(5).reliability(Reliability::BestEffort);
+        s.subscribe(
+            &topic(&nc.camera_info_topic),
+            ("sensor_msgs", "CameraInfo"),
+            info_qos,
+            move |s, info| s.on_camera_info(&c, info),
+        )?;
+        let c = cam.clone();
+        s.subscribe(
+            &topic(&nc.depth_topic),
+            IMAGE,
+            sensor_qos(),
+            move |s: &mut Shared, img| {
+                if s.inputs.is_none() {
+                    s.first_depth.insert(c.clone(), img);
+                }
+            },
+        )?;
+        let c = cam.clone();
+        s.subscribe(
+            &topic(&nc.mask_topic),
+            IMAGE,
+            sensor_qos(),
+            move |s: &mut Shared, img| {
+                if s.inputs.is_none() {
+                    s.first_masks.insert(c.clone(), img);
+                }
+            },
+        )?;
+    }
+    let joint_states = ("sensor_msgs", "JointState");
+    s.subscribe(
+        &nc.joint_states_topic,
+        joint_states,
+        state_qos(100),
+        Shared::on_joint_state,
+    )?;
+    let frames: BTreeMap<String, String> = nc
+        .cameras
+        .iter()
+        .map(|c| (NodeConfig::for_camera(&nc.optical_frame, c), c.clone()))
+        .collect();
+    let world = nc.world_frame.clone();
+    s.subscribe(
+        "/tf_static",
+        ("tf2_msgs", "TFMessage"),
+        latched_qos(),
+        move |s, tf| s.on_tf_static(&frames, &world, tf),
+    )
+}

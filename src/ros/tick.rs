@@ -1,0 +1,388 @@
+//! The tick thread. It waits until the configured cameras are known (CameraInfo and pose) and,
+//! for a scene initialised from cameras, have sent a first image; builds the world as replay does
+//! (a scenario, or `init` from the first frames); then drives `Tracker::tick` at the physics rate
+//! on the node's clock, on whatever is newest, skipping ticks whose deadline passed instead of
+//! queueing them. What each tick produced goes to the publishing thread (`Outputs`).
+
+use super::diagnostics::{Window, diagnostics};
+use super::node::RunStats;
+use super::publish::TickOutput;
+use super::subscribe::Shared;
+use super::{log, now, outputs, rss_mb};
+use crate::config::Config;
+use crate::init::FirstFrames;
+use crate::inputs::{TickInputs, decode_depth, decode_image, decode_labels};
+use crate::math::Pose;
+use crate::msgs::{Header, Time};
+use crate::render::{Camera, GaussianCloud};
+use crate::scene::Scene;
+use crate::topics::NodeConfig;
+use crate::tracker::{Observer, Tick, Tracker};
+use anyhow::{Context as _, Result, anyhow, bail};
+use glam::Quat;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// How long the node waits for every camera's CameraInfo and /tf_static transform before it
+/// starts with the cameras it has.
+const CAMERA_WAIT_S: f64 = 5.0;
+
+/// Start the tracker, then tick until `stop`.
+pub fn tick_loop(
+    config: Config,
+    shared: Arc<Mutex<Shared>>,
+    live: Arc<Mutex<Config>>,
+    tx: SyncSender<TickOutput>,
+    stop: Arc<AtomicBool>,
+) -> Result<RunStats> {
+    let rss_mb_start = rss_mb();
+    let Some(mut tracker) = start_tracker(&config, &shared, &stop)? else {
+        return Ok(RunStats {
+            rss_mb_start,
+            ..Default::default()
+        });
+    };
+    let dt = config.physics.dt as f64;
+    let mut outputs = Outputs::new(&config, shared.clone(), tx);
+    outputs.stats.rss_mb_start = rss_mb_start;
+    let mut applied = config;
+    // The world's clock is the node's clock: tick k ends at start + k dt, whatever happened before.
+    let mut next = tracker.time() + dt;
+    let started = now();
+    let mut index = 0;
+    while !stop.load(Ordering::SeqCst) {
+        let wait = next - now();
+        if wait > 0.0 {
+            std::thread::sleep(Duration::from_secs_f64(wait.min(0.1)));
+            continue;
+        }
+        // A tick whose deadline passed more than a period ago is not run late: it is skipped, and
+        // the world is predicted across it without correction (its images are gone).
+        while now() - next > dt {
+            next += dt;
+            outputs.stats.skipped_ticks += 1;
+        }
+        outputs.clock = Instant::now();
+        // Newest configuration from the parameter services.
+        if let Ok(c) = live.lock()
+            && *c != applied
+        {
+            applied = c.clone();
+            tracker.set_correct(applied.correct.clone());
+            outputs.debug_every = applied.node.debug_images_every as usize;
+        }
+        let inputs = take_inputs(&shared, next, applied.correct.max_image_age as f64)?;
+        let report = tracker.tick(&inputs)?;
+        index += 1;
+        outputs.gain = applied.correct.gain;
+        outputs.tick(&Tick {
+            index,
+            tracker: &tracker,
+            inputs: &inputs,
+            report: &report,
+        })?;
+        next += dt;
+    }
+    Ok(outputs.finish(now() - started))
+}
+
+/// What the tick ending at `t` consumes, and the input explanations logged.
+fn take_inputs(shared: &Mutex<Shared>, t: f64, max_age: f64) -> Result<TickInputs> {
+    let Ok(mut s) = shared.lock() else {
+        bail!("state lock poisoned")
+    };
+    let Some(inputs) = s.inputs.as_mut() else {
+        bail!("inputs missing")
+    };
+    let tick = inputs.tick_inputs(t, max_age);
+    for line in inputs.log.take_lines() {
+        log(&line);
+    }
+    Ok(tick)
+}
+
+/// The cameras that are ready (CameraInfo and pose), in configuration order.
+fn ready_cameras(s: &Shared, nc: &NodeConfig) -> Vec<(String, Camera)> {
+    nc.cameras
+        .iter()
+        .filter_map(|name| {
+            let info = s.infos.get(name)?;
+            let pose = s.camera_poses.get(name)?;
+            let k = info.k;
+            let (fx, fy, cx, cy) = (k[0] as f32, k[4] as f32, k[2] as f32, k[5] as f32);
+            let camera = Camera::from_opencv(info.width, info.height, fx, fy, cx, cy, *pose);
+            Some((name.clone(), camera))
+        })
+        .collect()
+}
+
+/// Wait for the cameras, then build the scene and its tracker; None if stopped first.
+fn start_tracker(
+    config: &Config,
+    shared: &Mutex<Shared>,
+    stop: &AtomicBool,
+) -> Result<Option<Tracker>> {
+    let nc = &config.node;
+    let started = now();
+    let mut told = false;
+    loop {
+        if stop.load(Ordering::SeqCst) {
+            return Ok(None);
+        }
+        let (cameras, needs_images) = {
+            let s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
+            let cameras = ready_cameras(&s, nc);
+            let needs_images = config.scene.scenario.is_none()
+                && cameras.iter().any(|(c, _)| !s.first_images.contains_key(c));
+            (cameras, needs_images)
+        };
+        let waited = now() - started;
+        let all = cameras.len() == nc.cameras.len();
+        if !cameras.is_empty() && !needs_images && (all || waited > CAMERA_WAIT_S) {
+            let mut s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
+            report_unused_cameras(&mut s, nc, &cameras, waited);
+            return start(config, cameras, &mut s).map(Some);
+        }
+        if !told && waited > 1.0 {
+            log(&format!(
+                "waiting for CameraInfo and /tf_static of {:?}",
+                nc.cameras
+            ));
+            told = true;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Log and remember the configured cameras that are not ready.
+fn report_unused_cameras(s: &mut Shared, nc: &NodeConfig, ready: &[(String, Camera)], waited: f64) {
+    for name in &nc.cameras {
+        if ready.iter().any(|(c, _)| c == name) {
+            continue;
+        }
+        let why = match (
+            s.infos.contains_key(name),
+            s.camera_poses.contains_key(name),
+        ) {
+            (false, _) => "no CameraInfo",
+            (true, false) => "no /tf_static transform to its optical frame",
+            _ => "not ready",
+        };
+        log(&format!(
+            "camera {name}: {why} after {waited:.1} s; continuing without it"
+        ));
+        s.unused_cameras.insert(name.clone(), why.to_string());
+    }
+}
+
+/// The tracker on the node's clock, and the inputs that feed it (with the joint state and images
+/// that arrived before it started).
+fn start(config: &Config, cameras: Vec<(String, Camera)>, s: &mut Shared) -> Result<Tracker> {
+    let mut scene = build_scene(config, &cameras, s)?;
+    let t = now();
+    scene.world.time = t;
+    let tracker = Tracker::new(scene, config, true)?;
+    let mut inputs = tracker.inputs(cameras);
+    if let Some(js) = s.last_joint_state.take() {
+        let _ = inputs.offer_joint_state(&js, t);
+    }
+    for (c, img) in std::mem::take(&mut s.first_images) {
+        if let Some(k) = inputs.camera_index(&c) {
+            let _ = inputs.offer_image(k, &img, t);
+        }
+    }
+    log(&format!(
+        "tracking {} object(s) with {} camera(s)",
+        tracker.world().shapes.dynamic_ids().count(),
+        inputs.cameras.len()
+    ));
+    s.inputs = Some(inputs);
+    Ok(tracker)
+}
+
+/// A built-in scenario's world, or one initialised from the first frames (as `pegs replay` does).
+fn build_scene(config: &Config, cameras: &[(String, Camera)], s: &Shared) -> Result<Scene> {
+    if let Some(name) = &config.scene.scenario {
+        let offset = Pose::new(
+            config.scene.offset_position,
+            Quat::from_rotation_z(config.scene.offset_yaw),
+        );
+        return crate::scenario::build(name, offset);
+    }
+    let mut images = Vec::new();
+    for (name, cam) in cameras {
+        let img = s
+            .first_images
+            .get(name)
+            .with_context(|| format!("camera {name}: no first image"))?;
+        let decoded = decode_image(img, cam)
+            .map_err(|why| anyhow!("camera {name}: first image unusable: {why}"))?;
+        images.push(decoded);
+    }
+    let depth: Vec<Option<Vec<f32>>> = cameras
+        .iter()
+        .map(|(n, c)| s.first_depth.get(n).and_then(|i| decode_depth(i, c).ok()))
+        .collect();
+    let labels: Vec<Option<Vec<u8>>> = cameras
+        .iter()
+        .map(|(n, c)| s.first_masks.get(n).and_then(|i| decode_labels(i, c).ok()))
+        .collect();
+    let frames: Vec<FirstFrames> = cameras
+        .iter()
+        .enumerate()
+        .map(|(k, (name, cam))| FirstFrames {
+            name: name.clone(),
+            camera: *cam,
+            images: vec![images[k].as_slice()],
+            depth: depth[k].as_deref(),
+            labels: labels[k].as_deref(),
+        })
+        .collect();
+    let joints: Vec<(String, f64)> = s
+        .last_joint_state
+        .as_ref()
+        .map(|js| {
+            let named = js.name.iter().cloned().zip(js.position.iter().copied());
+            named.filter(|(_, v)| v.is_finite()).collect()
+        })
+        .unwrap_or_default();
+    let (scene, _report) = crate::init::build_scene(&config.init(), &frames, &joints, false)?;
+    Ok(scene)
+}
+
+/// The node's observer of ticks: builds each tick's messages for the publishing thread, keeps the
+/// run's statistics and the window of numbers `/diagnostics` reports.
+struct Outputs {
+    shared: Arc<Mutex<Shared>>,
+    tx: SyncSender<TickOutput>,
+    world_frame: String,
+    dt: f64,
+    diagnostics_period: f64,
+    debug_every: usize,
+    /// When the current tick started (for its duration).
+    clock: Instant,
+    /// The gain the tick corrected with (for diagnostics).
+    gain: f32,
+    window: Window,
+    last_diagnostics: f64,
+    tick_ms: Vec<f64>,
+    stats: RunStats,
+}
+
+impl Outputs {
+    fn new(config: &Config, shared: Arc<Mutex<Shared>>, tx: SyncSender<TickOutput>) -> Self {
+        Self {
+            shared,
+            tx,
+            world_frame: config.node.world_frame.clone(),
+            dt: config.physics.dt as f64,
+            diagnostics_period: config.node.diagnostics_period as f64,
+            debug_every: config.node.debug_images_every as usize,
+            clock: Instant::now(),
+            gain: config.correct.gain,
+            window: Window::default(),
+            last_diagnostics: now(),
+            tick_ms: Vec::new(),
+            stats: RunStats::default(),
+        }
+    }
+
+    /// The run's statistics after `elapsed` seconds of ticking.
+    fn finish(mut self, elapsed: f64) -> RunStats {
+        let stats = &mut self.stats;
+        stats.achieved_rate_hz = stats.ticks as f64 / elapsed.max(1e-9);
+        let ms = &mut self.tick_ms;
+        ms.sort_by(f64::total_cmp);
+        stats.tick_ms_mean = ms.iter().sum::<f64>() / ms.len().max(1) as f64;
+        let p95 = ((ms.len() as f64 * 0.95) as usize).min(ms.len().saturating_sub(1));
+        stats.tick_ms_p95 = ms.get(p95).copied().unwrap_or(f64::NAN);
+        stats.rss_mb_end = rss_mb();
+        if let Ok(s) = self.shared.lock()
+            && let Some(inputs) = &s.inputs
+        {
+            stats.images_rejected = inputs.log.images_rejected;
+            stats.joint_states_rejected = inputs.log.joint_states_rejected;
+            let rejections = inputs.rejections.iter();
+            stats.rejections = rejections.map(|(k, v)| (k.to_string(), *v)).collect();
+            let cameras = inputs.cameras.iter();
+            stats.images_accepted = cameras.map(|f| (f.name.clone(), f.accepted)).collect();
+        }
+        log(&format!(
+            "stopped after {} ticks ({:.1} Hz, {} overruns, {} skipped)",
+            stats.ticks, stats.achieved_rate_hz, stats.overruns, stats.skipped_ticks
+        ));
+        self.stats
+    }
+
+    /// Count the tick into the statistics and the diagnostics window.
+    fn count(&mut self, tick: &Tick) {
+        let tick_ms = self.clock.elapsed().as_secs_f64() * 1e3;
+        self.stats.ticks += 1;
+        if tick_ms > self.dt * 1e3 {
+            self.stats.overruns += 1;
+        }
+        let w = &mut self.window;
+        w.ticks += 1;
+        w.tick_ms.push(tick_ms);
+        w.no_views += tick.inputs.images.is_empty() as usize;
+        w.gain = self.gain;
+        if let Some(c) = &tick.report.correction {
+            w.loss += c.loss_before as f64;
+            w.force += c.force.iter().map(|f| f.length() as f64).sum::<f64>();
+        }
+        self.tick_ms.push(tick_ms);
+    }
+
+    /// Diagnostics when the period has passed.
+    fn diagnostics(
+        &mut self,
+        header: &Header,
+        tick: &Tick,
+    ) -> Option<crate::msgs::DiagnosticArray> {
+        if now() - self.last_diagnostics < self.diagnostics_period {
+            return None;
+        }
+        self.last_diagnostics = now();
+        let s = self.shared.lock().ok()?;
+        let d = diagnostics(header, &s, tick.inputs, &self.window, &self.stats, self.dt);
+        self.window = Window::default();
+        d
+    }
+}
+
+impl Observer for Outputs {
+    fn tick(&mut self, tick: &Tick) -> Result<()> {
+        let world = tick.tracker.world();
+        let header = Header {
+            stamp: Time::from_seconds(tick.inputs.time),
+            frame_id: self.world_frame.clone(),
+        };
+        let objects = outputs::tracked_objects(world, tick.report.correction.as_ref(), &header);
+        self.count(tick);
+        let images = &tick.inputs.images;
+        let newest_image = images.iter().map(|i| i.stamp).reduce(f64::max);
+        let debug = (self.debug_every > 0 && self.stats.ticks.is_multiple_of(self.debug_every))
+            .then(|| {
+                let cameras = images.iter().map(|i| (i.name.clone(), i.camera)).collect();
+                (GaussianCloud::from_world(world), cameras)
+            });
+        let diagnostics = self.diagnostics(&header, tick);
+        let cloud = outputs::particle_cloud(world, &header);
+        let output = TickOutput {
+            header,
+            objects,
+            cloud,
+            newest_image,
+            debug,
+            diagnostics,
+        };
+        match self.tx.try_send(output) {
+            Ok(()) => {}
+            Err(TrySendError::Full(_)) => self.stats.dropped_outputs += 1,
+            Err(TrySendError::Disconnected(_)) => bail!("the publishing thread stopped"),
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,178 @@
+//! The tick: one owner for predict / correct. `Tracker::tick` takes what a tick consumes
+//! (`inputs::TickInputs`: the time it ends at, the newest usable image of every camera and the
+//! robot's joint trajectory), predicts with the physics (the robot driven by the trajectory),
+//! corrects against the images and returns what happened (`TickReport`). Offline replay and the
+//! live node are drivers: they feed ticks and publish or write what comes back, through
+//! `Observer`s that see the tracker read-only after every tick. Nothing else touches the world
+//! between ticks.
+
+mod observer;
+
+pub use observer::{Observer, Tick};
+
+use crate::config::Config;
+use crate::correct::{CorrectConfig, CorrectStats, Corrector};
+use crate::inputs::{Inputs, TickInputs};
+use crate::physics::{PhysicsConfig, Solver};
+use crate::render::Camera;
+use crate::robot::{JointTrajectory, RobotInWorld};
+use crate::scene::Scene;
+use crate::world::World;
+use anyhow::Result;
+use std::time::Instant;
+
+/// At most this many missed ticks are caught up by prediction alone; beyond it the clock jumps.
+pub const MAX_CATCH_UP_TICKS: usize = 10;
+
+pub struct Tracker {
+    scene: Scene,
+    solver: Solver,
+    /// None: physics only (no visual forces).
+    corrector: Option<Corrector>,
+}
+
+/// What one tick did.
+#[derive(Clone, Debug, Default)]
+pub struct TickReport {
+    /// When the tick ended (the world's clock after it), s.
+    pub time: f64,
+    /// Ticks predicted without correction before this one, to catch up with a clock that ran
+    /// ahead (the live node after an overrun).
+    pub caught_up: usize,
+    /// Seconds the world's clock jumped over without prediction (a gap beyond
+    /// `MAX_CATCH_UP_TICKS`).
+    pub jumped_s: f64,
+    /// The correction: photometric loss, visual forces and the wrench on every shape. None when
+    /// the tick was not corrected (physics only, or correction disabled).
+    pub correction: Option<CorrectStats>,
+    /// Images the correction compared with.
+    pub cameras_used: usize,
+    /// Non-finite visual forces and robot poses the physics refused in this tick.
+    pub rejected_forces: usize,
+    pub rejected_poses: usize,
+    /// Wall time of the prediction (catching up included) and of the correction, ms.
+    pub predict_ms: f64,
+    pub correct_ms: f64,
+}
+
+impl Tracker {
+    /// A tracker of `scene` from its world's clock on, with the configuration's physics, and its
+    /// correction when `visual_forces` (and `correct.enabled`).
+    pub fn new(scene: Scene, config: &Config, visual_forces: bool) -> Result<Self> {
+        let correct = visual_forces.then(|| (config.correct.clone(), config.render.clone()));
+        Self::with(scene, config.physics.clone(), correct)
+    }
+
+    /// A tracker with explicit physics and, if any, correction settings.
+    pub fn with(
+        scene: Scene,
+        physics: PhysicsConfig,
+        correct: Option<(CorrectConfig, crate::render::RenderSettings)>,
+    ) -> Result<Self> {
+        let solver = Solver::new(physics, &scene.world)?;
+        let corrector = match correct {
+            Some((c, render)) if c.enabled => Some(Corrector::new(c, render)?),
+            _ => None,
+        };
+        Ok(Self {
+            scene,
+            solver,
+            corrector,
+        })
+    }
+
+    /// Run the tick that ends at `inputs.time`: catch up with the clock if it ran ahead, follow
+    /// the joint trajectory, predict, correct.
+    pub fn tick(&mut self, inputs: &TickInputs) -> Result<TickReport> {
+        // The robot follows the newest joint states, also across ticks caught up.
+        if let (Some(trajectory), Some((_, followed))) = (&inputs.trajectory, &mut self.scene.robot)
+        {
+            followed.clone_from(trajectory);
+        }
+        let clock = Instant::now();
+        let mut report = self.catch_up(inputs.time)?;
+        self.scene.advance(&mut self.solver)?;
+        report.rejected_forces = self.solver.stats.rejected_forces;
+        report.rejected_poses = self.solver.stats.rejected_poses;
+        report.predict_ms = clock.elapsed().as_secs_f64() * 1e3;
+        if let Some(corrector) = self.corrector.as_mut().filter(|c| c.config.enabled) {
+            let clock = Instant::now();
+            let views = inputs.views();
+            let dt = self.solver.config().dt;
+            report.correction = Some(corrector.correct(&mut self.scene.world, &views, dt)?);
+            report.cameras_used = views.len();
+            report.correct_ms = clock.elapsed().as_secs_f64() * 1e3;
+        }
+        report.time = self.scene.world.time;
+        Ok(report)
+    }
+
+    /// One tick of the physics alone, with the robot on its current trajectory (a ground-truth
+    /// world, or a tracker whose cameras are all gone).
+    pub fn predict(&mut self) -> Result<()> {
+        self.scene.advance(&mut self.solver)
+    }
+
+    /// Predict across ticks the clock has already passed (their images are gone), up to
+    /// `MAX_CATCH_UP_TICKS`; beyond that, jump the world's clock.
+    fn catch_up(&mut self, t: f64) -> Result<TickReport> {
+        let dt = self.solver.config().dt as f64;
+        let behind = ((t - dt - self.scene.world.time) / dt).round().max(0.0) as usize;
+        let mut report = TickReport::default();
+        if behind > MAX_CATCH_UP_TICKS {
+            report.jumped_s = (behind - MAX_CATCH_UP_TICKS) as f64 * dt;
+            self.scene.world.time += report.jumped_s;
+        }
+        report.caught_up = behind.min(MAX_CATCH_UP_TICKS);
+        for _ in 0..report.caught_up {
+            self.scene.advance(&mut self.solver)?;
+        }
+        Ok(report)
+    }
+
+    /// The inputs that feed this tracker: `cameras`, and the robot's joint states starting from
+    /// where the robot stands now.
+    pub fn inputs(&self, cameras: Vec<(String, Camera)>) -> Inputs {
+        let robot_start = self.robot().map(|(r, trajectory)| {
+            let q = trajectory
+                .at(self.time())
+                .unwrap_or_else(|| vec![0.0; r.model.joints.len()]);
+            (r.model.clone(), q)
+        });
+        Inputs::new(
+            cameras,
+            robot_start.as_ref().map(|(m, q)| (m, q.as_slice())),
+        )
+    }
+
+    /// The tracked world after the last tick.
+    pub fn world(&self) -> &World {
+        &self.scene.world
+    }
+
+    /// The world's clock: when the last tick ended, s.
+    pub fn time(&self) -> f64 {
+        self.scene.world.time
+    }
+
+    /// The robot and the joint trajectory it followed in the last tick.
+    pub fn robot(&self) -> Option<(&RobotInWorld, &JointTrajectory)> {
+        self.scene.robot.as_ref().map(|(r, t)| (r, t))
+    }
+
+    pub fn physics(&self) -> &PhysicsConfig {
+        self.solver.config()
+    }
+
+    /// Whether ticks are corrected (visual forces on and enabled).
+    pub fn corrects(&self) -> bool {
+        self.corrector.as_ref().is_some_and(|c| c.config.enabled)
+    }
+
+    /// New correction settings from the next tick on (a live parameter change).
+    pub fn set_correct(&mut self, config: CorrectConfig) {
+        if let Some(corrector) = &mut self.corrector {
+            corrector.config = config;
+        }
+    }
+}
