@@ -31,6 +31,9 @@ pub enum Rejection {
     BadImage(String),
     /// Not later than the newest message of its stream (duplicate or reordered).
     OutOfOrder { stamp: f64, newest: f64 },
+    /// More than `JUMP_BACK_S` behind the newest message of its stream (a looped recording, a
+    /// restarted driver); the stream restarts if the next messages jump back too.
+    JumpedBack { stamp: f64, newest: f64 },
     /// Stamped ahead of the clock.
     Future { stamp: f64, now: f64 },
     /// Names and positions of a joint state differ in length, or a stamp is not finite.
@@ -46,6 +49,11 @@ impl fmt::Display for Rejection {
             Self::OutOfOrder { stamp, newest } => write!(
                 f,
                 "stamp {stamp:.3} s is not after the newest {newest:.3} s (duplicate or out of order)"
+            ),
+            Self::JumpedBack { stamp, newest } => write!(
+                f,
+                "stamp {stamp:.3} s is {:.3} s behind the newest {newest:.3} s (jumped back; the stream restarts if the next ones do too)",
+                newest - stamp
             ),
             Self::Future { stamp, now } => write!(
                 f,
@@ -64,6 +72,7 @@ impl Rejection {
         match self {
             Self::BadImage(_) => "bad_image",
             Self::OutOfOrder { .. } => "out_of_order",
+            Self::JumpedBack { .. } => "jumped_back",
             Self::Future { .. } => "future_stamp",
             Self::Malformed(_) => "malformed",
             Self::NonFinite(_) => "non_finite",
@@ -108,6 +117,7 @@ impl StampOrder {
                             back_s: newest - stamp,
                         });
                     }
+                    return Err(Rejection::JumpedBack { stamp, newest });
                 }
                 Err(Rejection::OutOfOrder { stamp, newest })
             }
@@ -674,11 +684,8 @@ mod tests {
         let mut inputs = Inputs::new(vec![("a".into(), camera())], None);
         inputs.offer_image(0, &image(10.0), 10.0).unwrap();
         for k in 0..RESTART_AFTER - 1 {
-            assert!(
-                inputs
-                    .offer_image(0, &image(2.0 + k as f64 * 0.1), 10.5)
-                    .is_err()
-            );
+            let jumped = inputs.offer_image(0, &image(2.0 + k as f64 * 0.1), 10.5);
+            assert!(matches!(jumped, Err(Rejection::JumpedBack { .. })), "{jumped:?}");
         }
         inputs
             .offer_image(0, &image(2.5), 10.5)

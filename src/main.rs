@@ -1,7 +1,7 @@
 //! The `pegs` command line. Each subcommand is a thin shell over the library.
 
 use anyhow::Result;
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 use pegs::config::Config;
 use std::path::PathBuf;
 
@@ -19,21 +19,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Run the built-in demo scene and write its trajectory.
-    Demo {
-        /// Configuration (YAML, ROS parameter-file layout); defaults apply without it.
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Output directory for trajectory.csv and summary.json.
-        #[arg(long, default_value = "demo_out")]
-        out: PathBuf,
-        /// Simulated seconds.
-        #[arg(long, default_value_t = 5.0)]
-        seconds: f64,
-        /// Concealed scenario of the diagnosis story (generate, track, diagnose, refit, report;
-        /// a few minutes), or `none` to skip it.
-        #[arg(long, default_value = "concealed_drag")]
-        story: String,
-    },
+    Demo(DemoArgs),
     /// Measure speed; prints JSON with --json.
     Bench {
         #[command(subcommand)]
@@ -45,63 +31,15 @@ enum Command {
         what: ScenarioCommand,
     },
     /// Run predict/correct on a recording (MCAP) and write objects.csv and metrics.json.
-    Replay {
-        recording: PathBuf,
-        #[arg(long)]
-        config: PathBuf,
-        #[arg(long)]
-        out: PathBuf,
-        /// Physics only.
-        #[arg(long)]
-        no_visual_forces: bool,
-        /// Visual forces only: no gravity, ground or collisions.
-        #[arg(long)]
-        no_physics: bool,
-        /// Also replay physics-only and visual-forces-only and report the error ratios.
-        #[arg(long, conflicts_with_all = ["no_visual_forces", "no_physics"])]
-        compare: bool,
-        /// Use only the first N cameras (by name).
-        #[arg(long)]
-        cameras: Option<usize>,
-        /// Write the silhouette IoU table into this Markdown file between its real-iou markers.
-        #[arg(long)]
-        readme: Option<PathBuf>,
-        /// A model file from `pegs diagnose`: its effects are added to the configuration's physics.
-        #[arg(long)]
-        model: Option<PathBuf>,
-    },
+    Replay(ReplayArgs),
     /// Find the physics the model misses: locate where open-loop predictions fail, name the
     /// effect that explains it with its parameter, rerun with it and compare. Writes
     /// DIR/report.md, DIR/report.json, DIR/model.yaml (for `replay --model`), plots and both replays.
-    Diagnose {
-        recording: PathBuf,
-        #[arg(long)]
-        config: PathBuf,
-        #[arg(long)]
-        out: PathBuf,
-        /// Start from this model file's effects (e.g. a previous diagnosis).
-        #[arg(long)]
-        model: Option<PathBuf>,
-    },
+    Diagnose(DiagnoseArgs),
     /// Run as a ROS 2 node: subscribe to the cameras and /joint_states, track at the physics rate
     /// and publish poses, particle clouds, debug images, /tf and /diagnostics. Configuration:
     /// --config (or the defaults), then `--ros-args --params-file FILE -p name:=value ...`.
-    Node {
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// A model file from `pegs diagnose`: its effects are added to the physics.
-        #[arg(long)]
-        model: Option<PathBuf>,
-        /// Stop after this many seconds (default: run until SIGINT / SIGTERM).
-        #[arg(long)]
-        duration: Option<f64>,
-        /// Write run statistics (JSON: tick rate, overruns, latency, memory) here on exit.
-        #[arg(long)]
-        stats: Option<PathBuf>,
-        /// ROS arguments: --ros-args [-p name:=value] [--params-file FILE] [-r __node:=NAME].
-        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
-        ros_args: Vec<String>,
-    },
+    Node(NodeArgs),
     /// Convert another project's recording layout into a pegs recording and replay configuration.
     Import {
         #[command(subcommand)]
@@ -109,52 +47,14 @@ enum Command {
     },
     /// Reproduce the supplementary's ablations on synthetic scenarios: PNG plots of tracking
     /// error over time per ablation and OUT/summary.md. Lists are comma-separated.
-    Ablate {
-        #[arg(long)]
-        out: PathBuf,
-        #[arg(long, value_delimiter = ',', default_values_t = ["two_boxes".to_string(), "pushed_tblock".to_string()])]
-        scenarios: Vec<String>,
-        /// Resolution of every run outside the resolution ablation, WxH.
-        #[arg(long, default_value = "320x180", value_parser = parse_resolution)]
-        base: (u32, u32),
-        #[arg(long, default_value_t = 4.5)]
-        seconds: f64,
-        #[arg(long, value_delimiter = ',', value_parser = parse_resolution, default_values = ["1280x720", "640x360", "320x180", "160x90"])]
-        resolutions: Vec<(u32, u32)>,
-        #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 3])]
-        cameras: Vec<usize>,
-        #[arg(long, value_delimiter = ',', default_values_t = [0.5, 1.0, 1.5, 3.0, 6.0])]
-        gains: Vec<f32>,
-        #[arg(long, value_delimiter = ',', default_values_t = [0.0005, 0.0015, 0.005, 0.015])]
-        learning_rates: Vec<f32>,
-        #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 5, 10])]
-        iterations: Vec<u32>,
-        /// Also write the summary table into this Markdown file between its ablation markers.
-        #[arg(long)]
-        readme: Option<PathBuf>,
-    },
+    Ablate(AblateArgs),
 }
 
 #[derive(Subcommand)]
 enum ImportFormat {
     /// The PEGS authors' sample layout (videos/*.mp4 + *.json, cameras.json, object JSON files,
     /// ground_plane.json, ground.npy); videos are decoded with the ffmpeg tool.
-    EmbodiedGaussians {
-        dir: PathBuf,
-        #[arg(long)]
-        out: PathBuf,
-        #[arg(long)]
-        config_out: PathBuf,
-        /// Seconds after the first frame to start at.
-        #[arg(long, default_value_t = 0.0)]
-        start: f64,
-        /// Seconds to import (all by default).
-        #[arg(long)]
-        duration: Option<f64>,
-        /// Keep at most this many frames per second per camera (0 keeps all).
-        #[arg(long, default_value_t = 30.0)]
-        max_rate: f64,
-    },
+    EmbodiedGaussians(EmbodiedGaussiansArgs),
 }
 
 /// The configuration at `config`, with the effects of the model file at `model` (if any) added.
@@ -198,92 +98,24 @@ enum ScenarioCommand {
     /// Generate and diagnose the concealed-physics scenarios, check each diagnosis against the
     /// hidden truth and print a Markdown table; with --readme, write it between the
     /// concealed-table markers of that file. Fails if a scenario's diagnosis is wrong.
-    Concealed {
-        #[arg(long)]
-        out: PathBuf,
-        #[arg(long, value_delimiter = ',')]
-        scenarios: Vec<String>,
-        #[arg(long, default_value_t = 320)]
-        width: u32,
-        #[arg(long, default_value_t = 180)]
-        height: u32,
-        #[arg(long)]
-        readme: Option<PathBuf>,
-    },
+    Concealed(ConcealedScenarioArgs),
     /// Generate every scenario, replay each with --compare, and print a Markdown table of the
     /// tracking errors; with --readme, write it between the scenario-table markers of that file.
-    Table {
-        #[arg(long)]
-        out: PathBuf,
-        #[arg(long, default_value_t = 320)]
-        width: u32,
-        #[arg(long, default_value_t = 180)]
-        height: u32,
-        #[arg(long)]
-        readme: Option<PathBuf>,
-    },
+    Table(TableScenarioArgs),
     /// Simulate a scenario and write DIR/recording.mcap, DIR/ground_truth.csv and DIR/config.yaml.
-    Generate {
-        name: String,
-        #[arg(long)]
-        out: PathBuf,
-        #[arg(long, default_value_t = 640)]
-        width: u32,
-        #[arg(long, default_value_t = 360)]
-        height: u32,
-        /// Recording length, s (default: the scenario's own, 4.5 s or 5.5 s for concealed ones).
-        #[arg(long)]
-        seconds: Option<f64>,
-        /// Initial position error (m, along x) the replay config gives the tracker.
-        #[arg(long, default_value_t = 0.01)]
-        offset: f32,
-        /// Initial rotation error about z (degrees) the replay config gives the tracker.
-        #[arg(long, default_value_t = 5.0)]
-        offset_yaw_deg: f32,
-    },
+    Generate(GenerateScenarioArgs),
 }
 
 #[derive(Subcommand)]
 enum BenchTarget {
     /// Time one physics tick for particle scenes of 1k/10k/50k and the T-block + robot scene.
-    Physics {
-        #[arg(long)]
-        json: bool,
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Timed ticks per scene.
-        #[arg(long, default_value_t = 30)]
-        ticks: usize,
-        /// Untimed ticks before timing.
-        #[arg(long, default_value_t = 5)]
-        warmup: usize,
-        /// Only these scenes (cube_field_1k, cube_field_10k, cube_field_50k, tblock_robot).
-        #[arg(long)]
-        scene: Vec<String>,
-    },
+    Physics(PhysicsBenchArgs),
     /// Time forward and forward+backward rendering of the 20k-Gaussian T-block scene into three
     /// cameras at 640x360 and 320x180, full frame and region of interest, per backend.
-    Render {
-        #[arg(long)]
-        json: bool,
-        /// Timed repetitions per case.
-        #[arg(long, default_value_t = 5)]
-        repetitions: usize,
-        /// Also write the full-frame renders of each camera as PNG into this directory.
-        #[arg(long)]
-        save: Option<PathBuf>,
-    },
+    Render(RenderBenchArgs),
     /// Time full predict + correct ticks of the pushed T-block scenario, 3 cameras at 320x180
     /// and 640x360, per backend.
-    Tick {
-        #[arg(long)]
-        json: bool,
-        #[arg(long, default_value_t = 10)]
-        ticks: usize,
-        /// Backends to time (default: cpu and wgpu).
-        #[arg(long, value_enum)]
-        backend: Vec<BackendArg>,
-    },
+    Tick(TickBenchArgs),
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -299,452 +131,699 @@ fn load_config(path: &Option<PathBuf>) -> Result<Config> {
     }
 }
 
+#[derive(Args)]
+struct DemoArgs {
+    /// Configuration (YAML, ROS parameter-file layout); defaults apply without it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Output directory for trajectory.csv and summary.json.
+    #[arg(long, default_value = "demo_out")]
+    pub out: PathBuf,
+    /// Simulated seconds.
+    #[arg(long, default_value_t = 5.0)]
+    pub seconds: f64,
+    /// Concealed scenario of the diagnosis story (generate, track, diagnose, refit, report;
+    /// a few minutes), or `none` to skip it.
+    #[arg(long, default_value = "concealed_drag")]
+    pub story: String,
+}
+
+#[derive(Args)]
+struct ReplayArgs {
+    pub recording: PathBuf,
+    #[arg(long)]
+    pub config: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Physics only.
+    #[arg(long)]
+    pub no_visual_forces: bool,
+    /// Visual forces only: no gravity, ground or collisions.
+    #[arg(long)]
+    pub no_physics: bool,
+    /// Also replay physics-only and visual-forces-only and report the error ratios.
+    #[arg(long, conflicts_with_all = ["no_visual_forces", "no_physics"])]
+    pub compare: bool,
+    /// Use only the first N cameras (by name).
+    #[arg(long)]
+    pub cameras: Option<usize>,
+    /// Write the silhouette IoU table into this Markdown file between its real-iou markers.
+    #[arg(long)]
+    pub readme: Option<PathBuf>,
+    /// A model file from `pegs diagnose`: its effects are added to the configuration's physics.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct DiagnoseArgs {
+    pub recording: PathBuf,
+    #[arg(long)]
+    pub config: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Start from this model file's effects (e.g. a previous diagnosis).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct NodeArgs {
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// A model file from `pegs diagnose`: its effects are added to the physics.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Stop after this many seconds (default: run until SIGINT / SIGTERM).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Write run statistics (JSON: tick rate, overruns, latency, memory) here on exit.
+    #[arg(long)]
+    pub stats: Option<PathBuf>,
+    /// ROS arguments: --ros-args [-p name:=value] [--params-file FILE] [-r __node:=NAME].
+    #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+    pub ros_args: Vec<String>,
+}
+
+#[derive(Args)]
+struct AblateArgs {
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, value_delimiter = ',', default_values_t = ["two_boxes".to_string(), "pushed_tblock".to_string()])]
+    pub scenarios: Vec<String>,
+    /// Resolution of every run outside the resolution ablation, WxH.
+    #[arg(long, default_value = "320x180", value_parser = parse_resolution)]
+    pub base: (u32, u32),
+    #[arg(long, default_value_t = 4.5)]
+    pub seconds: f64,
+    #[arg(long, value_delimiter = ',', value_parser = parse_resolution, default_values = ["1280x720", "640x360", "320x180", "160x90"])]
+    pub resolutions: Vec<(u32, u32)>,
+    #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 3])]
+    pub cameras: Vec<usize>,
+    #[arg(long, value_delimiter = ',', default_values_t = [0.5, 1.0, 1.5, 3.0, 6.0])]
+    pub gains: Vec<f32>,
+    #[arg(long, value_delimiter = ',', default_values_t = [0.0005, 0.0015, 0.005, 0.015])]
+    pub learning_rates: Vec<f32>,
+    #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 5, 10])]
+    pub iterations: Vec<u32>,
+    /// Also write the summary table into this Markdown file between its ablation markers.
+    #[arg(long)]
+    pub readme: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct ConcealedScenarioArgs {
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, value_delimiter = ',')]
+    pub scenarios: Vec<String>,
+    #[arg(long, default_value_t = 320)]
+    pub width: u32,
+    #[arg(long, default_value_t = 180)]
+    pub height: u32,
+    #[arg(long)]
+    pub readme: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct TableScenarioArgs {
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 320)]
+    pub width: u32,
+    #[arg(long, default_value_t = 180)]
+    pub height: u32,
+    #[arg(long)]
+    pub readme: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct GenerateScenarioArgs {
+    pub name: String,
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 640)]
+    pub width: u32,
+    #[arg(long, default_value_t = 360)]
+    pub height: u32,
+    /// Recording length, s (default: the scenario's own, 4.5 s or 5.5 s for concealed ones).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// Initial position error (m, along x) the replay config gives the tracker.
+    #[arg(long, default_value_t = 0.01)]
+    pub offset: f32,
+    /// Initial rotation error about z (degrees) the replay config gives the tracker.
+    #[arg(long, default_value_t = 5.0)]
+    pub offset_yaw_deg: f32,
+}
+
+#[derive(Args)]
+struct PhysicsBenchArgs {
+    #[arg(long)]
+    pub json: bool,
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Timed ticks per scene.
+    #[arg(long, default_value_t = 30)]
+    pub ticks: usize,
+    /// Untimed ticks before timing.
+    #[arg(long, default_value_t = 5)]
+    pub warmup: usize,
+    /// Only these scenes (cube_field_1k, cube_field_10k, cube_field_50k, tblock_robot).
+    #[arg(long)]
+    pub scene: Vec<String>,
+}
+
+#[derive(Args)]
+struct RenderBenchArgs {
+    #[arg(long)]
+    pub json: bool,
+    /// Timed repetitions per case.
+    #[arg(long, default_value_t = 5)]
+    pub repetitions: usize,
+    /// Also write the full-frame renders of each camera as PNG into this directory.
+    #[arg(long)]
+    pub save: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct TickBenchArgs {
+    #[arg(long)]
+    pub json: bool,
+    #[arg(long, default_value_t = 10)]
+    pub ticks: usize,
+    /// Backends to time (default: cpu and wgpu).
+    #[arg(long, value_enum)]
+    pub backend: Vec<BackendArg>,
+}
+
+#[derive(Args)]
+struct EmbodiedGaussiansArgs {
+    pub dir: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long)]
+    pub config_out: PathBuf,
+    /// Seconds after the first frame to start at.
+    #[arg(long, default_value_t = 0.0)]
+    pub start: f64,
+    /// Seconds to import (all by default).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Keep at most this many frames per second per camera (0 keeps all).
+    #[arg(long, default_value_t = 30.0)]
+    pub max_rate: f64,
+}
+
 fn main() -> Result<()> {
-    let cli = Cli::parse();
-    match cli.command {
-        Command::Demo {
-            config,
-            out,
-            seconds,
-            story,
-        } => {
-            let config = load_config(&config)?;
-            let summary = pegs::demo::run(&config, &out, seconds)?;
-            println!(
-                "demo '{}': {} ticks, {} particles, {} Gaussians, {:.2} ms per tick",
-                summary.scene,
-                summary.ticks,
-                summary.particles,
-                summary.gaussians,
-                summary.wall_ms_per_tick
-            );
-            for o in &summary.objects {
-                println!(
-                    "  {:<8} start ({:+.3}, {:+.3}, {:+.3}) end ({:+.3}, {:+.3}, {:+.3}) travelled {:.3} m, max rigid deviation {:.2} mm",
-                    o.object,
-                    o.start[0],
-                    o.start[1],
-                    o.start[2],
-                    o.end[0],
-                    o.end[1],
-                    o.end[2],
-                    o.travelled_m,
-                    o.max_rigid_deviation_m * 1e3
-                );
-            }
-            println!(
-                "wrote trajectory.csv, summary.json, start.png and end.png in {}",
-                out.display()
-            );
-            if story != "none" {
-                println!("diagnosis story on {story} (a few minutes)");
-                let v = pegs::demo::story(&out, &story)?;
-                println!(
-                    "  hidden {}, named {}{}; 1 s open-loop error {:.1} -> {:.1} mm; {}",
-                    v.truth,
-                    v.named,
-                    v.estimate
-                        .zip(v.truth_value)
-                        .map_or(String::new(), |(e, t)| format!(" {e:.4} (truth {t:.4})")),
-                    v.open_loop_before_mm,
-                    v.open_loop_after_mm,
-                    if v.passed() { "passed" } else { "failed" }
-                );
-                println!("wrote {}", out.join("story.md").display());
-            }
-        }
-        Command::Bench {
-            what:
-                BenchTarget::Physics {
-                    json,
-                    config,
-                    ticks,
-                    warmup,
-                    scene,
-                },
-        } => {
-            let config = load_config(&config)?;
-            let report = pegs::bench::physics(&config.physics, ticks.max(1), warmup, &scene)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            } else {
-                for s in &report.scenes {
-                    println!(
-                        "{:<16} {:>6} dynamic {:>6} kinematic: {:8.2} ms/tick (median of {})",
-                        s.scene,
-                        s.dynamic_particles,
-                        s.kinematic_particles,
-                        s.ms_per_tick_median,
-                        s.ticks
-                    );
-                }
-            }
-        }
-        Command::Bench {
-            what:
-                BenchTarget::Render {
-                    json,
-                    repetitions,
-                    save,
-                },
-        } => {
-            let report = pegs::bench::render(repetitions, save.as_deref())?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            } else {
-                for r in &report.runs {
-                    println!(
-                        "{:<4} {}x{} {:<4} {:>7} px/cam: forward {:8.2} ms, forward+backward {:8.2} ms ({:.2} ms per camera)",
-                        r.backend,
-                        r.resolution[0],
-                        r.resolution[1],
-                        r.window,
-                        r.pixels_per_camera,
-                        r.forward_ms,
-                        r.forward_backward_ms,
-                        r.forward_backward_ms_per_camera
-                    );
-                }
-            }
-        }
-        Command::Scenario {
-            what:
-                ScenarioCommand::Table {
-                    out,
-                    width,
-                    height,
-                    readme,
-                },
-        } => {
-            let table = pegs::evaluate::scenario_table::run(&out, width, height)?;
-            println!("{table}");
-            if let Some(path) = readme {
-                pegs::evaluate::write_between(
-                    &path,
-                    pegs::evaluate::scenario_table::START,
-                    pegs::evaluate::scenario_table::END,
-                    &table,
-                )?;
-                println!("updated {}", path.display());
-            }
-        }
-        Command::Scenario {
-            what:
-                ScenarioCommand::Concealed {
-                    out,
-                    scenarios,
-                    width,
-                    height,
-                    readme,
-                },
-        } => {
-            let names: Vec<String> = if scenarios.is_empty() {
-                pegs::scenario::concealed::NAMES
-                    .iter()
-                    .map(|s| s.to_string())
-                    .collect()
-            } else {
-                scenarios
-            };
-            let (verdicts, table) =
-                pegs::evaluate::concealed_table::run(&out, &names, width, height, true)?;
-            println!("{table}");
-            if let Some(path) = readme {
-                pegs::evaluate::write_between(
-                    &path,
-                    pegs::evaluate::concealed_table::START,
-                    pegs::evaluate::concealed_table::END,
-                    &table,
-                )?;
-                println!("updated {}", path.display());
-            }
-            let failed: Vec<&str> = verdicts
-                .iter()
-                .filter(|v| !v.passed())
-                .map(|v| v.scenario.as_str())
-                .collect();
-            if !failed.is_empty() {
-                anyhow::bail!("diagnosis wrong for: {}", failed.join(", "));
-            }
-        }
+    match Cli::parse().command {
+        Command::Demo(a) => demo(a),
+        Command::Replay(a) => replay(a),
+        Command::Diagnose(a) => diagnose(a),
+        Command::Node(a) => node(a),
         Command::Scenario {
             what: ScenarioCommand::List,
-        } => {
-            for n in pegs::scenario::all_names() {
-                println!("{n:<20} {}", pegs::scenario::description(n));
-            }
-        }
+        } => scenario_list(),
         Command::Scenario {
-            what:
-                ScenarioCommand::Generate {
-                    name,
-                    out,
-                    width,
-                    height,
-                    seconds,
-                    offset,
-                    offset_yaw_deg,
-                },
-        } => {
-            let opts = pegs::scenario::generate::GenerateOptions {
-                width,
-                height,
-                seconds: seconds.unwrap_or_else(|| pegs::scenario::seconds(&name)),
-                offset_position: glam::Vec3::new(offset, 0.0, 0.0),
-                offset_yaw: offset_yaw_deg.to_radians(),
-                ..Default::default()
-            };
-            pegs::scenario::generate::generate(&name, &out, &opts)?;
-            println!(
-                "wrote {0}/recording.mcap, {0}/ground_truth.csv and {0}/config.yaml",
-                out.display()
-            );
-        }
-        Command::Ablate {
-            out,
-            scenarios,
-            base,
-            seconds,
-            resolutions,
-            cameras,
-            gains,
-            learning_rates,
-            iterations,
-            readme,
-        } => {
-            let opts = pegs::evaluate::ablation::SweepOptions {
-                scenarios,
-                base,
-                seconds,
-                resolutions,
-                cameras,
-                gains,
-                learning_rates,
-                iterations,
-            };
-            let rows = pegs::evaluate::ablation::run(&opts, &out)?;
-            let table = pegs::evaluate::ablation::summary_table(&rows);
-            println!("{table}");
-            println!("plots and runs in {}", out.display());
-            if let Some(path) = readme {
-                pegs::evaluate::write_between(
-                    &path,
-                    pegs::evaluate::ablation::START,
-                    pegs::evaluate::ablation::END,
-                    &table,
-                )?;
-                println!("updated {}", path.display());
-            }
-        }
-        Command::Node {
-            config,
-            model,
-            duration,
-            stats,
-            ros_args,
-        } => {
-            let base = load_with_model(config.as_deref(), model.as_deref())?;
-            let launch = pegs::ros::params::parse_ros_args(&ros_args)?;
-            let config = pegs::ros::params::launch_config(base, &launch)?;
-            let s = pegs::ros::node::run(
-                config,
-                &launch,
-                pegs::ros::node::RunOptions { duration, stats },
-            )?;
-            println!("{}", serde_json::to_string_pretty(&s)?);
-        }
-        Command::Replay {
-            recording,
-            config,
-            out,
-            no_visual_forces,
-            no_physics,
-            compare,
-            cameras,
-            readme,
-            model,
-        } => {
-            let config = load_with_model(Some(&config), model.as_deref())?;
-            let opts = pegs::replay::ReplayOptions {
-                visual_forces: !no_visual_forces,
-                physics: !no_physics,
-                max_cameras: cameras,
-                ..Default::default()
-            };
-            let m = if compare {
-                pegs::replay::run_compare(&recording, &config, &out, true)?
-            } else {
-                pegs::replay::run(&recording, &config, &out, opts)?
-            };
-            println!(
-                "replayed {} ticks ({:.1} s) from cameras {:?} [{}], {:.1} ms per tick",
-                m.ticks, m.seconds, m.cameras, m.mode, m.wall_ms_per_tick
-            );
-            for (object, e) in &m.tracking_error {
-                println!(
-                    "  {object}: tracking error mean {:.2} mm, p95 {:.2} mm, final {:.2} mm",
-                    e.mean_mm, e.p95_mm, e.final_mm
-                );
-            }
-            for (object, cams) in &m.silhouette_iou {
-                for (camera, s) in cams {
-                    println!(
-                        "  {object} in {camera}: silhouette IoU mean {:.3}, p5 {:.3}; visible part {:.3}, p5 {:.3}; over {} frames",
-                        s.mean, s.p5, s.visible_mean, s.visible_p5, s.frames
-                    );
-                }
-            }
-            for (object, c) in &m.comparison {
-                println!(
-                    "  {object}: physics only {:.2} mm, visual forces only {:.2} mm (ratios {:.2} / {:.2})",
-                    c.physics_only_mean_mm,
-                    c.visual_forces_only_mean_mm,
-                    c.ratio_to_physics_only,
-                    c.ratio_to_visual_forces_only
-                );
-            }
-            if m.rejected_images + m.rejected_joint_states > 0 {
-                println!(
-                    "  rejected {} images and {} joint states (see metrics.json warnings)",
-                    m.rejected_images, m.rejected_joint_states
-                );
-            }
-            println!("wrote {0}/objects.csv and {0}/metrics.json", out.display());
-            if let Some(path) = readme {
-                use pegs::replay::silhouette;
-                pegs::evaluate::write_between(
-                    &path,
-                    silhouette::TABLE_START,
-                    silhouette::TABLE_END,
-                    &silhouette::iou_table(&m),
-                )?;
-                println!("updated {}", path.display());
-            }
-        }
-        Command::Diagnose {
-            recording,
-            config,
-            out,
-            model,
-        } => {
-            let config = load_with_model(Some(&config), model.as_deref())?;
-            let report = pegs::diagnose::diagnose(
-                &recording,
-                &config,
-                &out,
-                pegs::diagnose::DiagnoseOptions::default(),
-            )?;
-            for o in &report.objects {
-                let driven: Vec<String> = o
-                    .unexplained
-                    .iter()
-                    .filter(|m| m.sped_up)
-                    .map(|m| format!("{:.1}-{:.1} s", m.t_start, m.t_end))
-                    .collect();
-                if !driven.is_empty() {
-                    println!(
-                        "{}: moved by something outside the model (sped up, no modelled contact, unexplained) at {}",
-                        o.object,
-                        driven.join(", ")
-                    );
-                }
-                if o.effect == "none" {
-                    println!(
-                        "{}: no significant missing physics in the effect library",
-                        o.object
-                    );
-                    continue;
-                }
-                let params: Vec<String> = o
-                    .parameters
-                    .iter()
-                    .map(|p| format!("{} {:.4} {}", p.name, p.value, p.unit))
-                    .collect();
-                println!(
-                    "{}: {} ({}); held-out 1 s prediction error {:.1} -> {:.1} mm",
-                    o.object,
-                    o.effect,
-                    params.join(", "),
-                    o.before.open_loop_error_mm,
-                    o.after.open_loop_error_mm
-                );
-            }
-            println!(
-                "wrote {0}/report.md, {0}/report.json and {0}/model.yaml",
-                out.display()
-            );
-        }
+            what: ScenarioCommand::Generate(a),
+        } => scenario_generate(a),
+        Command::Scenario {
+            what: ScenarioCommand::Table(a),
+        } => scenario_table(a),
+        Command::Scenario {
+            what: ScenarioCommand::Concealed(a),
+        } => scenario_concealed(a),
+        Command::Ablate(a) => ablate(a),
         Command::Import {
-            what:
-                ImportFormat::EmbodiedGaussians {
-                    dir,
-                    out,
-                    config_out,
-                    start,
-                    duration,
-                    max_rate,
-                },
-        } => {
-            let opts = pegs::import::embodied_gaussians::ImportOptions {
-                start,
-                duration,
-                max_rate,
-                progress: true,
-            };
-            let report = pegs::import::embodied_gaussians::import(&dir, &out, &config_out, &opts)?;
-            for w in &report.warnings {
-                eprintln!("warning: {w}");
-            }
+            what: ImportFormat::EmbodiedGaussians(a),
+        } => import_embodied_gaussians(a),
+        Command::Bench {
+            what: BenchTarget::Physics(a),
+        } => bench_physics(a),
+        Command::Bench {
+            what: BenchTarget::Render(a),
+        } => bench_render(a),
+        Command::Bench {
+            what: BenchTarget::Tick(a),
+        } => bench_tick(a),
+    }
+}
+
+fn demo(a: DemoArgs) -> Result<()> {
+    let DemoArgs {
+        config,
+        out,
+        seconds,
+        story,
+    } = a;
+    let config = load_config(&config)?;
+    let summary = pegs::demo::run(&config, &out, seconds)?;
+    println!(
+        "demo '{}': {} ticks, {} particles, {} Gaussians, {:.2} ms per tick",
+        summary.scene,
+        summary.ticks,
+        summary.particles,
+        summary.gaussians,
+        summary.wall_ms_per_tick
+    );
+    for o in &summary.objects {
+        println!(
+            "  {:<8} start ({:+.3}, {:+.3}, {:+.3}) end ({:+.3}, {:+.3}, {:+.3}) travelled {:.3} m, max rigid deviation {:.2} mm",
+            o.object,
+            o.start[0],
+            o.start[1],
+            o.start[2],
+            o.end[0],
+            o.end[1],
+            o.end[2],
+            o.travelled_m,
+            o.max_rigid_deviation_m * 1e3
+        );
+    }
+    println!(
+        "wrote trajectory.csv, summary.json, start.png and end.png in {}",
+        out.display()
+    );
+    if story != "none" {
+        println!("diagnosis story on {story} (a few minutes)");
+        let v = pegs::demo::story(&out, &story)?;
+        println!(
+            "  hidden {}, named {}{}; 1 s open-loop error {:.1} -> {:.1} mm; {}",
+            v.truth,
+            v.named,
+            v.estimate
+                .zip(v.truth_value)
+                .map_or(String::new(), |(e, t)| format!(" {e:.4} (truth {t:.4})")),
+            v.open_loop_before_mm,
+            v.open_loop_after_mm,
+            if v.passed() { "passed" } else { "failed" }
+        );
+        println!("wrote {}", out.join("story.md").display());
+    }
+    Ok(())
+}
+
+fn replay(a: ReplayArgs) -> Result<()> {
+    let ReplayArgs {
+        recording,
+        config,
+        out,
+        no_visual_forces,
+        no_physics,
+        compare,
+        cameras,
+        readme,
+        model,
+    } = a;
+    let config = load_with_model(Some(&config), model.as_deref())?;
+    let opts = pegs::replay::ReplayOptions {
+        visual_forces: !no_visual_forces,
+        physics: !no_physics,
+        max_cameras: cameras,
+        ..Default::default()
+    };
+    let m = if compare {
+        pegs::replay::run_compare(&recording, &config, &out, true)?
+    } else {
+        pegs::replay::run(&recording, &config, &out, opts)?
+    };
+    print_replay(&m);
+    println!("wrote {0}/objects.csv and {0}/metrics.json", out.display());
+    if let Some(path) = readme {
+        use pegs::replay::silhouette;
+        pegs::evaluate::write_between(
+            &path,
+            silhouette::TABLE_START,
+            silhouette::TABLE_END,
+            &silhouette::iou_table(&m),
+        )?;
+        println!("updated {}", path.display());
+    }
+    Ok(())
+}
+
+/// What a replay measured, one line per object and measure.
+fn print_replay(m: &pegs::replay::Metrics) {
+    println!(
+        "replayed {} ticks ({:.1} s) from cameras {:?} [{}], {:.1} ms per tick",
+        m.ticks, m.seconds, m.cameras, m.mode, m.wall_ms_per_tick
+    );
+    for (object, e) in &m.tracking_error {
+        println!(
+            "  {object}: tracking error mean {:.2} mm, p95 {:.2} mm, final {:.2} mm",
+            e.mean_mm, e.p95_mm, e.final_mm
+        );
+    }
+    for (object, cams) in &m.silhouette_iou {
+        for (camera, s) in cams {
             println!(
-                "imported {:.2} s to {:.2} s: {:?} frames; wrote {} and {}",
-                report.first_stamp,
-                report.last_stamp,
-                report.frames_per_camera,
-                out.display(),
-                config_out.display()
+                "  {object} in {camera}: silhouette IoU mean {:.3}, p5 {:.3}; visible part {:.3}, p5 {:.3}; over {} frames",
+                s.mean, s.p5, s.visible_mean, s.visible_p5, s.frames
             );
         }
-        Command::Bench {
-            what:
-                BenchTarget::Tick {
-                    json,
-                    ticks,
-                    backend,
-                },
-        } => {
-            use pegs::render::Backend;
-            let backends: Vec<Backend> = if backend.is_empty() {
-                vec![Backend::Cpu, Backend::Wgpu]
-            } else {
-                backend
-                    .iter()
-                    .map(|b| match b {
-                        BackendArg::Cpu => Backend::Cpu,
-                        BackendArg::Wgpu => Backend::Wgpu,
-                    })
-                    .collect()
-            };
-            let report = pegs::bench::tick(ticks.max(1), &backends, &[(320, 180), (640, 360)])?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            } else {
-                for r in &report.runs {
-                    println!(
-                        "{:<5} {} x {}x{}: predict {:7.2} ms + correct {:8.2} ms = {:8.2} ms per tick ({:.1} ticks/s)",
-                        r.backend,
-                        r.cameras,
-                        r.resolution[0],
-                        r.resolution[1],
-                        r.predict_ms,
-                        r.correct_ms,
-                        r.tick_ms,
-                        r.ticks_per_second
-                    );
-                }
-                for s in &report.skipped {
-                    println!("skipped {s}");
-                }
-            }
+    }
+    for (object, c) in &m.comparison {
+        println!(
+            "  {object}: physics only {:.2} mm, visual forces only {:.2} mm (ratios {:.2} / {:.2})",
+            c.physics_only_mean_mm,
+            c.visual_forces_only_mean_mm,
+            c.ratio_to_physics_only,
+            c.ratio_to_visual_forces_only
+        );
+    }
+    if m.rejected_images + m.rejected_joint_states > 0 {
+        println!(
+            "  rejected {} images and {} joint states (see metrics.json warnings)",
+            m.rejected_images, m.rejected_joint_states
+        );
+    }
+}
+
+fn diagnose(a: DiagnoseArgs) -> Result<()> {
+    let DiagnoseArgs {
+        recording,
+        config,
+        out,
+        model,
+    } = a;
+    let config = load_with_model(Some(&config), model.as_deref())?;
+    let report = pegs::diagnose::diagnose(
+        &recording,
+        &config,
+        &out,
+        pegs::diagnose::DiagnoseOptions::default(),
+    )?;
+    for o in &report.objects {
+        let driven: Vec<String> = o
+            .unexplained
+            .iter()
+            .filter(|m| m.sped_up)
+            .map(|m| format!("{:.1}-{:.1} s", m.t_start, m.t_end))
+            .collect();
+        if !driven.is_empty() {
+            println!(
+                "{}: moved by something outside the model (sped up, no modelled contact, unexplained) at {}",
+                o.object,
+                driven.join(", ")
+            );
+        }
+        if o.effect == "none" {
+            println!(
+                "{}: no significant missing physics in the effect library",
+                o.object
+            );
+            continue;
+        }
+        let params: Vec<String> = o
+            .parameters
+            .iter()
+            .map(|p| format!("{} {:.4} {}", p.name, p.value, p.unit))
+            .collect();
+        println!(
+            "{}: {} ({}); held-out 1 s prediction error {:.1} -> {:.1} mm",
+            o.object,
+            o.effect,
+            params.join(", "),
+            o.before.open_loop_error_mm,
+            o.after.open_loop_error_mm
+        );
+    }
+    println!(
+        "wrote {0}/report.md, {0}/report.json and {0}/model.yaml",
+        out.display()
+    );
+    Ok(())
+}
+
+fn node(a: NodeArgs) -> Result<()> {
+    let NodeArgs {
+        config,
+        model,
+        duration,
+        stats,
+        ros_args,
+    } = a;
+    let base = load_with_model(config.as_deref(), model.as_deref())?;
+    let launch = pegs::ros::params::parse_ros_args(&ros_args)?;
+    let config = pegs::ros::params::launch_config(base, &launch)?;
+    let s = pegs::ros::node::run(
+        config,
+        &launch,
+        pegs::ros::node::RunOptions { duration, stats },
+    )?;
+    println!("{}", serde_json::to_string_pretty(&s)?);
+    Ok(())
+}
+
+fn scenario_list() -> Result<()> {
+    for n in pegs::scenario::all_names() {
+        println!("{n:<20} {}", pegs::scenario::description(n));
+    }
+    Ok(())
+}
+
+fn scenario_generate(a: GenerateScenarioArgs) -> Result<()> {
+    let GenerateScenarioArgs {
+        name,
+        out,
+        width,
+        height,
+        seconds,
+        offset,
+        offset_yaw_deg,
+    } = a;
+    let opts = pegs::scenario::generate::GenerateOptions {
+        width,
+        height,
+        seconds: seconds.unwrap_or_else(|| pegs::scenario::seconds(&name)),
+        offset_position: glam::Vec3::new(offset, 0.0, 0.0),
+        offset_yaw: offset_yaw_deg.to_radians(),
+        ..Default::default()
+    };
+    pegs::scenario::generate::generate(&name, &out, &opts)?;
+    println!(
+        "wrote {0}/recording.mcap, {0}/ground_truth.csv and {0}/config.yaml",
+        out.display()
+    );
+    Ok(())
+}
+
+fn scenario_table(a: TableScenarioArgs) -> Result<()> {
+    let TableScenarioArgs {
+        out,
+        width,
+        height,
+        readme,
+    } = a;
+    let table = pegs::evaluate::scenario_table::run(&out, width, height)?;
+    println!("{table}");
+    if let Some(path) = readme {
+        pegs::evaluate::write_between(
+            &path,
+            pegs::evaluate::scenario_table::START,
+            pegs::evaluate::scenario_table::END,
+            &table,
+        )?;
+        println!("updated {}", path.display());
+    }
+    Ok(())
+}
+
+fn scenario_concealed(a: ConcealedScenarioArgs) -> Result<()> {
+    let ConcealedScenarioArgs {
+        out,
+        scenarios,
+        width,
+        height,
+        readme,
+    } = a;
+    let names: Vec<String> = if scenarios.is_empty() {
+        pegs::scenario::concealed::NAMES
+            .iter()
+            .map(|s| s.to_string())
+            .collect()
+    } else {
+        scenarios
+    };
+    let (verdicts, table) =
+        pegs::evaluate::concealed_table::run(&out, &names, width, height, true)?;
+    println!("{table}");
+    if let Some(path) = readme {
+        pegs::evaluate::write_between(
+            &path,
+            pegs::evaluate::concealed_table::START,
+            pegs::evaluate::concealed_table::END,
+            &table,
+        )?;
+        println!("updated {}", path.display());
+    }
+    let failed: Vec<&str> = verdicts
+        .iter()
+        .filter(|v| !v.passed())
+        .map(|v| v.scenario.as_str())
+        .collect();
+    if !failed.is_empty() {
+        anyhow::bail!("diagnosis wrong for: {}", failed.join(", "));
+    }
+    Ok(())
+}
+
+fn ablate(a: AblateArgs) -> Result<()> {
+    let AblateArgs {
+        out,
+        scenarios,
+        base,
+        seconds,
+        resolutions,
+        cameras,
+        gains,
+        learning_rates,
+        iterations,
+        readme,
+    } = a;
+    let opts = pegs::evaluate::ablation::SweepOptions {
+        scenarios,
+        base,
+        seconds,
+        resolutions,
+        cameras,
+        gains,
+        learning_rates,
+        iterations,
+    };
+    let rows = pegs::evaluate::ablation::run(&opts, &out)?;
+    let table = pegs::evaluate::ablation::summary_table(&rows);
+    println!("{table}");
+    println!("plots and runs in {}", out.display());
+    if let Some(path) = readme {
+        pegs::evaluate::write_between(
+            &path,
+            pegs::evaluate::ablation::START,
+            pegs::evaluate::ablation::END,
+            &table,
+        )?;
+        println!("updated {}", path.display());
+    }
+    Ok(())
+}
+
+fn import_embodied_gaussians(a: EmbodiedGaussiansArgs) -> Result<()> {
+    let EmbodiedGaussiansArgs {
+        dir,
+        out,
+        config_out,
+        start,
+        duration,
+        max_rate,
+    } = a;
+    let opts = pegs::import::embodied_gaussians::ImportOptions {
+        start,
+        duration,
+        max_rate,
+        progress: true,
+    };
+    let report = pegs::import::embodied_gaussians::import(&dir, &out, &config_out, &opts)?;
+    for w in &report.warnings {
+        eprintln!("warning: {w}");
+    }
+    println!(
+        "imported {:.2} s to {:.2} s: {:?} frames; wrote {} and {}",
+        report.first_stamp,
+        report.last_stamp,
+        report.frames_per_camera,
+        out.display(),
+        config_out.display()
+    );
+    Ok(())
+}
+
+fn bench_physics(a: PhysicsBenchArgs) -> Result<()> {
+    let PhysicsBenchArgs {
+        json,
+        config,
+        ticks,
+        warmup,
+        scene,
+    } = a;
+    let config = load_config(&config)?;
+    let report = pegs::bench::physics(&config.physics, ticks.max(1), warmup, &scene)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        for s in &report.scenes {
+            println!(
+                "{:<16} {:>6} dynamic {:>6} kinematic: {:8.2} ms/tick (median of {})",
+                s.scene, s.dynamic_particles, s.kinematic_particles, s.ms_per_tick_median, s.ticks
+            );
+        }
+    }
+    Ok(())
+}
+
+fn bench_render(a: RenderBenchArgs) -> Result<()> {
+    let RenderBenchArgs {
+        json,
+        repetitions,
+        save,
+    } = a;
+    let report = pegs::bench::render(repetitions, save.as_deref())?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        for r in &report.runs {
+            println!(
+                "{:<4} {}x{} {:<4} {:>7} px/cam: forward {:8.2} ms, forward+backward {:8.2} ms ({:.2} ms per camera)",
+                r.backend,
+                r.resolution[0],
+                r.resolution[1],
+                r.window,
+                r.pixels_per_camera,
+                r.forward_ms,
+                r.forward_backward_ms,
+                r.forward_backward_ms_per_camera
+            );
+        }
+    }
+    Ok(())
+}
+
+fn bench_tick(a: TickBenchArgs) -> Result<()> {
+    let TickBenchArgs {
+        json,
+        ticks,
+        backend,
+    } = a;
+    use pegs::render::Backend;
+    let backends: Vec<Backend> = if backend.is_empty() {
+        vec![Backend::Cpu, Backend::Wgpu]
+    } else {
+        backend
+            .iter()
+            .map(|b| match b {
+                BackendArg::Cpu => Backend::Cpu,
+                BackendArg::Wgpu => Backend::Wgpu,
+            })
+            .collect()
+    };
+    let report = pegs::bench::tick(ticks.max(1), &backends, &[(320, 180), (640, 360)])?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        for r in &report.runs {
+            println!(
+                "{:<5} {} x {}x{}: predict {:7.2} ms + correct {:8.2} ms = {:8.2} ms per tick ({:.1} ticks/s)",
+                r.backend,
+                r.cameras,
+                r.resolution[0],
+                r.resolution[1],
+                r.predict_ms,
+                r.correct_ms,
+                r.tick_ms,
+                r.ticks_per_second
+            );
+        }
+        for s in &report.skipped {
+            println!("skipped {s}");
         }
     }
     Ok(())

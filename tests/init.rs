@@ -210,11 +210,13 @@ fn a_box_is_recovered_from_rgbd_and_masks() {
 }
 
 #[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
 fn a_t_block_is_recovered_with_its_notches_carved() {
     recover("pushed_tblock", "tblock");
 }
 
 #[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
 fn replay_builds_the_world_from_the_recordings_first_rgbd_frames_and_tracks() {
     let dir = std::env::temp_dir().join(format!("pegs-init-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);

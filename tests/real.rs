@@ -189,6 +189,7 @@ fn rows(path: &Path, serial: &str) -> [[f64; 4]; 4] {
 }
 
 #[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
 fn a_short_slice_is_imported_aligned_and_tracked() {
     let dir = scratch("slice");
     let (rec, cfg, out) = (

@@ -42,6 +42,7 @@ fn replay(rec: &Path, config: &Path, out: &Path, extra: &[&str]) -> serde_json::
 }
 
 #[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
 fn generated_recording_replays_deterministically_and_visual_forces_beat_physics_only() {
     let scn = scratch("scn");
     pegs(&[

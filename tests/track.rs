@@ -126,6 +126,7 @@ fn an_object_started_3cm_and_20_degrees_off_is_pulled_onto_its_true_pose_within_
 }
 
 #[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
 fn a_pushed_box_is_tracked_within_5mm_and_far_better_than_physics_only() {
     // The robot pushes the box 15 cm.
     let (with, without, last) = with_and_without("pushed_box");
@@ -138,6 +139,7 @@ fn a_pushed_box_is_tracked_within_5mm_and_far_better_than_physics_only() {
 }
 
 #[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
 fn a_pushed_t_block_is_tracked_within_5mm_mean() {
     let (with, without, last) = with_and_without("pushed_tblock");
     assert!(with < 0.005, "mean tracking error {with} m");
@@ -149,6 +151,7 @@ fn a_pushed_t_block_is_tracked_within_5mm_mean() {
 }
 
 #[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
 fn two_colliding_boxes_are_both_tracked_within_5mm_mean() {
     // The rod pushes one box into the other; both start off their true poses.
     let (with, without, _) = with_and_without("two_boxes");
@@ -160,6 +163,7 @@ fn two_colliding_boxes_are_both_tracked_within_5mm_mean() {
 }
 
 #[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
 fn a_t_block_pushed_over_is_tracked_through_its_fall_and_gravity_helps() {
     let offset = small_offset();
     let with = track("tblock_pushed_over", offset, 135, true);
@@ -182,6 +186,7 @@ fn a_t_block_pushed_over_is_tracked_through_its_fall_and_gravity_helps() {
 }
 
 #[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
 fn a_rope_dragged_by_the_robot_stays_tracked() {
     let offset = small_offset();
     let with = track("dragged_rope", offset, 135, true);
@@ -195,13 +200,22 @@ fn a_rope_dragged_by_the_robot_stays_tracked() {
         without[134] * 1e3
     );
     // A 1 cm thin chain: visual forces keep it within about a rope's width of the truth (measured
-    // mean 8.5 mm, the same as physics alone here). Without sharing each particle's force along
-    // the chain (`correct::spread_along_ropes`) the rope kinks and is lost (141 mm at 3 s).
+    // mean 8.5 mm). The rope is tied to the rod, so the physics alone follows the drag as well
+    // (8.6 mm): the corrections must not cost the rope that prior. Without sharing each particle's
+    // force along the chain (`correct::spread_along_ropes`) the rope kinks and is lost (141 mm at
+    // 3 s), far beyond both bounds.
     assert!(mean(&with) < 0.015, "mean tracking error {} m", mean(&with));
+    assert!(
+        mean(&with) <= 1.1 * mean(&without) + 0.0005,
+        "visual forces made the rope worse than physics alone: {} vs {} m",
+        mean(&with),
+        mean(&without)
+    );
     assert!(with.iter().all(|&e| e < 0.03), "the rope was lost");
 }
 
 #[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
 fn a_box_hidden_behind_the_arm_is_recovered_after_it_reappears() {
     let name = "hidden_box";
     // The scenario really hides the box: under 10 % of it is visible in any camera from 1.0 s

@@ -112,10 +112,59 @@ fn golden(
     Ok(())
 }
 
+/// One family's search on one object's fitting windows: every parameter value evaluated, with
+/// its per-window squared open-loop errors (the bootstrap resamples them).
+struct Search<'a> {
+    trace: &'a Trace,
+    family: &'static dyn Family,
+    train: &'a [usize],
+    horizon: usize,
+    evaluated: Vec<(f32, Vec<f64>)>,
+}
+
+fn mean(e: &[f64]) -> f64 {
+    e.iter().sum::<f64>() / e.len().max(1) as f64
+}
+
+impl Search<'_> {
+    /// Per-window squared errors of `family` at `value` from `starts`; None where the physics
+    /// rejects the parameter (a centre of mass outside the body) or the family does not apply.
+    fn errors(&self, setting: &FitSetting, value: f32, starts: &[usize]) -> Option<Vec<f64>> {
+        let physics = setting.physics(self.family, value)?;
+        let p = self
+            .trace
+            .predict(&physics, setting.shape, starts, self.horizon)
+            .ok()?;
+        Some(p.iter().map(|p| (p.error as f64).powi(2)).collect())
+    }
+
+    /// Mean squared error on the fitting windows at `value` (infinite where nothing fits),
+    /// remembered for the bootstrap.
+    fn loss(&mut self, setting: &FitSetting, value: f32) -> f64 {
+        let Some(e) = self.errors(setting, value, self.train) else {
+            return f64::INFINITY;
+        };
+        let l = mean(&e);
+        self.evaluated.push((value, e));
+        l
+    }
+}
+
+/// A parameter value with its bootstrap interval, setting and fitting-window errors.
+struct Estimate {
+    value: f32,
+    low: f32,
+    high: f32,
+    train_after: f64,
+    train_errors: Vec<f64>,
+    setting: FitSetting,
+}
+
 /// Fit `family` on `train` starts and judge it on `heldout` starts (each predicted `horizon`
 /// ticks). `base_train` / `base_heldout` are the base model's predictions from the same starts.
-/// A constant force's direction and a spring's anchor, first estimated from the base model's
-/// misses, are refined with the parameter (`refine`).
+/// The parameter is searched on a grid (logarithmic where the family says so), then by golden
+/// section around the best grid point; a constant force's direction and a spring's anchor, first
+/// estimated from the base model's misses, are refined with it (`refine`).
 #[allow(clippy::too_many_arguments)]
 pub fn fit(
     trace: &Trace,
@@ -131,99 +180,51 @@ pub fn fit(
     if family.placed_in_slid_area() {
         setting.region = place_patch(trace, &setting, family, train, horizon);
     }
-    let setting = &setting;
-    let Some((lo, hi, log)) = family.range(setting) else {
+    let Some((lo, hi, log)) = family.range(&setting) else {
         return Ok(None);
     };
     let to_x = |v: f32| if log { v.ln() } else { v };
     let from_x = |x: f32| if log { x.exp() } else { x };
-    let squared_errors = |physics: &PhysicsConfig, starts: &[usize]| -> Option<Vec<f64>> {
-        // Parameters the physics rejects (a centre of mass outside the body) fit nothing.
-        trace
-            .predict(physics, setting.shape, starts, horizon)
-            .ok()
-            .map(|p| p.iter().map(|p| (p.error as f64).powi(2)).collect())
+    let mut search = Search {
+        trace,
+        family,
+        train,
+        horizon,
+        evaluated: Vec::new(),
     };
-    let mean = |e: &[f64]| e.iter().sum::<f64>() / e.len().max(1) as f64;
-    // Every evaluated parameter with its per-window squared errors.
-    let mut evaluated: Vec<(f32, Vec<f64>)> = Vec::new();
-    let loss =
-        |v: f32, setting: &FitSetting, evaluated: &mut Vec<(f32, Vec<f64>)>| -> Result<f64> {
-            let Some(e) = setting
-                .physics(family, v)
-                .and_then(|p| squared_errors(&p, train))
-            else {
-                return Ok(f64::INFINITY);
-            };
-            let l = mean(&e);
-            evaluated.push((v, e));
-            Ok(l)
-        };
     let xs: Vec<f32> = (0..GRID)
         .map(|i| to_x(lo) + (to_x(hi) - to_x(lo)) * i as f32 / (GRID - 1) as f32)
         .collect();
-    let mut losses = Vec::with_capacity(GRID);
-    for &x in &xs {
-        losses.push(loss(from_x(x), setting, &mut evaluated)?);
-    }
+    let losses: Vec<f64> = xs
+        .iter()
+        .map(|&x| search.loss(&setting, from_x(x)))
+        .collect();
     let best = (0..GRID)
         .min_by(|&a, &b| losses[a].total_cmp(&losses[b]))
         .unwrap_or(0);
     if !losses[best].is_finite() {
         return Ok(None);
     }
-    let mut setting = setting.clone();
     let hopeful = 1.0 - losses[best] / mean_square(base_train).max(1e-12) >= HOPELESS_GAIN;
     if hopeful {
         // Golden-section search in the grid cells around the best grid point.
-        golden(
-            xs[best.saturating_sub(1)],
-            xs[(best + 1).min(GRID - 1)],
-            3,
-            |x| loss(from_x(x), &setting, &mut evaluated),
-        )?;
+        let (a, b) = (xs[best.saturating_sub(1)], xs[(best + 1).min(GRID - 1)]);
+        golden(a, b, 3, |x| Ok(search.loss(&setting, from_x(x))))?;
     }
-    let (estimate, low, high) = bootstrap_interval(&evaluated, 200, to_x, from_x);
-    let (mut value, mut train_after) = best_of(&evaluated);
-    let mut train_errors = evaluated
-        .iter()
-        .find(|(v, _)| *v == value)
-        .map(|e| e.1.clone())
-        .unwrap_or_default();
-    // The vertex estimate if the physics takes it and it fits the training windows no worse.
-    if estimate.is_finite()
-        && let Some(e) = setting
-            .physics(family, estimate)
-            .and_then(|p| squared_errors(&p, train))
-        && mean(&e) <= train_after
-    {
-        (value, train_after) = (estimate, mean(&e));
-        train_errors = e;
+    let mut estimate = estimate(&search, setting, to_x, from_x);
+    if hopeful {
+        refine_estimate(&search, &mut estimate)?;
     }
-    let (mut low, mut high) = (low.min(value), high.max(value));
-    // A force's direction and a spring's anchor were estimated from the base model's misses;
-    // refine them with the parameter by Gauss-Newton on the windows' misses.
-    if hopeful
-        && let Some(refined) = refine(trace, &setting, family, value, train, horizon)?
-        && let Some(e) = refined
-            .setting
-            .physics(family, refined.value)
-            .and_then(|p| squared_errors(&p, train))
-        && mean(&e) < train_after
-    {
-        (value, train_after, low, high) = (
-            refined.value,
-            mean(&e),
-            refined.low.min(refined.value),
-            refined.high.max(refined.value),
-        );
-        setting = refined.setting;
-        train_errors = e;
-    }
-    let physics = setting
-        .physics(family, value)
-        .ok_or_else(|| anyhow::anyhow!("family {} lost its setting", family.id()))?;
-    let held: Vec<f64> = squared_errors(&physics, heldout)
+    let Estimate {
+        value,
+        low,
+        high,
+        train_after,
+        train_errors,
+        setting,
+    } = estimate;
+    let held = search
+        .errors(&setting, value, heldout)
         .ok_or_else(|| anyhow::anyhow!("family {}: held-out prediction failed", family.id()))?;
     let (name, unit) = family.parameter();
     Ok(Some(Fit {
@@ -242,6 +243,70 @@ pub fn fit(
         family: Some(family),
         effect_term: family.effect(&setting, value),
     }))
+}
+
+/// The best evaluated value, or the bootstrap's vertex estimate if the physics takes it and it
+/// fits the training windows no worse; with the bootstrap interval (widened to hold the value).
+fn estimate(
+    search: &Search,
+    setting: FitSetting,
+    to_x: impl Fn(f32) -> f32,
+    from_x: impl Fn(f32) -> f32,
+) -> Estimate {
+    let (vertex, low, high) = bootstrap_interval(&search.evaluated, 200, to_x, from_x);
+    let (mut value, mut train_after) = best_of(&search.evaluated);
+    let mut train_errors = search
+        .evaluated
+        .iter()
+        .find(|(v, _)| *v == value)
+        .map(|e| e.1.clone())
+        .unwrap_or_default();
+    if vertex.is_finite()
+        && let Some(e) = search.errors(&setting, vertex, search.train)
+        && mean(&e) <= train_after
+    {
+        (value, train_after) = (vertex, mean(&e));
+        train_errors = e;
+    }
+    Estimate {
+        value,
+        low: low.min(value),
+        high: high.max(value),
+        train_after,
+        train_errors,
+        setting,
+    }
+}
+
+/// A force's direction and a spring's anchor were estimated from the base model's misses; refine
+/// them with the parameter by Gauss-Newton on the windows' misses, kept if the fitting windows
+/// are fitted better.
+fn refine_estimate(search: &Search, estimate: &mut Estimate) -> Result<()> {
+    let (trace, family, train) = (search.trace, search.family, search.train);
+    let Some(refined) = refine(
+        trace,
+        &estimate.setting,
+        family,
+        estimate.value,
+        train,
+        search.horizon,
+    )?
+    else {
+        return Ok(());
+    };
+    if let Some(e) = search.errors(&refined.setting, refined.value, train)
+        && mean(&e) < estimate.train_after
+    {
+        *estimate = Estimate {
+            value: refined.value,
+            low: refined.low.min(refined.value),
+            high: refined.high.max(refined.value),
+            train_after: mean(&e),
+            train_errors: e,
+            setting: refined.setting,
+        };
+    }
+    Ok(())
 }
 
 /// Patch friction values tried while placing a patch.

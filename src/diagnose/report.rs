@@ -110,185 +110,210 @@ impl Report {
         let mut md = format!("# Diagnosis of {}\n\n", self.recording);
         for o in &self.objects {
             let _ = writeln!(md, "## {}\n", o.object);
-            if o.mismatch.is_empty() && o.effect != "none" {
-                let _ = writeln!(
-                    md,
-                    "**Locate.** The named effect shows in the motion of the objects this one strikes (see their sections), not in short open-loop predictions of its own: {} short deviation(s) beyond {:.1} mm are listed under `unexplained` in report.json.\n",
-                    o.unexplained.len(),
-                    o.locate_threshold_mm
-                );
-            } else if o.mismatch.is_empty() {
-                let _ = writeln!(
-                    md,
-                    "**Locate.** No systematic mismatch: {} short deviation(s) of open-loop predictions (0.2 s) beyond {:.1} mm, which no candidate effect explains.\n",
-                    o.unexplained.len(),
-                    o.locate_threshold_mm
-                );
-            } else {
-                let _ = writeln!(
-                    md,
-                    "**Locate.** Short open-loop predictions (0.2 s) miss the tracked object by more than {:.1} mm, and {} explains the miss, in the windows below (another {} short deviation(s) it does not explain are listed under `unexplained` in report.json):\n",
-                    o.locate_threshold_mm,
-                    o.explained_by
-                        .as_ref()
-                        .map_or("the named effect".to_string(), |e| format!(
-                            "an effect of another object ({e})"
-                        )),
-                    o.unexplained.len()
-                );
-                let _ = writeln!(
-                    md,
-                    "| from (s) | to (s) | region x (m) | region y (m) | phase | peak error (mm) |\n|---|---|---|---|---|---|"
-                );
-                for m in &o.mismatch {
-                    let _ = writeln!(
-                        md,
-                        "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {} | {:.1} |",
-                        m.t_start,
-                        m.t_end,
-                        m.region_min[0],
-                        m.region_max[0],
-                        m.region_min[1],
-                        m.region_max[1],
-                        m.phase,
-                        m.peak_error_mm
-                    );
-                }
-                md.push('\n');
-            }
-            let driven: Vec<&Mismatch> = o.unexplained.iter().filter(|m| m.sped_up).collect();
-            if !driven.is_empty() {
-                let _ = writeln!(
-                    md,
-                    "Moved by something outside the model: in these unexplained windows the object sped up with no modelled body touching it (an unmodelled push or agent; no candidate effect explains it):\n"
-                );
-                let _ = writeln!(
-                    md,
-                    "| from (s) | to (s) | region x (m) | region y (m) | peak error (mm) |\n|---|---|---|---|---|"
-                );
-                for m in driven {
-                    let _ = writeln!(
-                        md,
-                        "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {:.1} |",
-                        m.t_start,
-                        m.t_end,
-                        m.region_min[0],
-                        m.region_max[0],
-                        m.region_min[1],
-                        m.region_max[1],
-                        m.peak_error_mm
-                    );
-                }
-                md.push('\n');
-            }
-            if o.effect == "none"
-                && let Some(by) = &o.explained_by
-            {
-                let _ = writeln!(
-                    md,
-                    "**Name.** No missing physics of its own: its mismatches are explained by {by}.\n"
-                );
-            } else if o.effect == "none" {
-                let _ = writeln!(
-                    md,
-                    "**Name.** No significant missing physics: no candidate effect cuts the held-out 1 s prediction error enough.\n"
-                );
-            } else {
-                let params: Vec<String> = o
-                    .parameters
-                    .iter()
-                    .map(|p| match (p.low, p.high) {
-                        (Some(l), Some(h)) => format!(
-                            "{} = {:.4} {} (95 % interval {:.4} .. {:.4})",
-                            p.name, p.value, p.unit, l, h
-                        ),
-                        _ => format!("{} = {:.4} {}", p.name, p.value, p.unit),
-                    })
-                    .collect();
-                let _ = writeln!(
-                    md,
-                    "**Name.** Missing effect: **{}**; {}.",
-                    o.effect,
-                    params.join("; ")
-                );
-                let _ = write!(
-                    md,
-                    "It removes {:.0} % of the held-out open-loop error",
-                    o.explained_fraction * 100.0
-                );
-                if let Some(f) = o.residual_explained_fraction {
-                    let _ = write!(
-                        md,
-                        " and explains {:.0} % of the held-out corrective force",
-                        f * 100.0
-                    );
-                }
-                md.push_str(".\n\n");
-                if let Some(n) = &o.named_fit {
-                    let _ = writeln!(
-                        md,
-                        "**Model.** Fitted first on the replay with the current model: {} = {:.4} {} ({:.4} .. {:.4}); refined on a replay tracked with the effect added (tracking with a model that lacks an effect lags what it does).\n",
-                        n.parameter, n.value, n.unit, n.low, n.high
-                    );
-                }
-            }
-            let _ = writeln!(
-                md,
-                "Candidates (fitted open loop on {} windows before {:.2} s, judged on {} after):\n",
-                o.train_windows, o.heldout_from, o.heldout_windows
-            );
-            let _ = writeln!(
-                md,
-                "| effect | parameter | value | 95 % interval | fit gain | held-out gain |\n|---|---|---|---|---|---|"
-            );
-            for c in &o.candidates {
-                let _ = writeln!(
-                    md,
-                    "| {} | {} ({}) | {:.4} | {:.4} .. {:.4} | {:.0} % | {:.0} % |",
-                    c.effect,
-                    c.parameter,
-                    c.unit,
-                    c.value,
-                    c.low,
-                    c.high,
-                    c.train_gain() * 100.0,
-                    c.heldout_gain() * 100.0
-                );
-            }
-            let r = &o.regression;
-            let named: Vec<&str> = r.found.iter().map(|f| f.effect.as_str()).collect();
-            let _ = writeln!(
-                md,
-                "\nResidual regression (corrective force on candidate effects, held-out RMS {:.3} -> {:.3} N): {}.\n",
-                r.heldout_rms_before,
-                r.heldout_rms_after,
-                if named.is_empty() {
-                    "nothing significant".to_string()
-                } else {
-                    named.join(", ")
-                }
-            );
-            let _ = writeln!(md, "**Show.** Held-out part, before -> after:\n");
-            let _ = writeln!(md, "| metric | before | after |\n|---|---|---|");
-            let _ = writeln!(
-                md,
-                "| open-loop error at 1 s (mm) | {:.1} | {:.1} |",
-                o.before.open_loop_error_mm, o.after.open_loop_error_mm
-            );
-            let _ = writeln!(
-                md,
-                "| corrective effort (N) | {:.3} | {:.3} |",
-                o.before.corrective_effort_n, o.after.corrective_effort_n
-            );
-            if let (Some(b), Some(a)) = (o.before.tracking_error_mm, o.after.tracking_error_mm) {
-                let _ = writeln!(md, "| tracking error (mm) | {b:.1} | {a:.1} |");
-            }
-            let _ = writeln!(
-                md,
-                "\n![residual over time]({0}_residual.png)\n![residual vs feature]({0}_feature.png)\n![paths]({0}_paths.png)\n",
-                o.object
-            );
+            locate_section(&mut md, o);
+            driven_section(&mut md, o);
+            name_section(&mut md, o);
+            candidates_section(&mut md, o);
+            show_section(&mut md, o);
         }
         md
     }
+}
+
+/// Where short open-loop predictions miss, and what explains it.
+fn locate_section(md: &mut String, o: &ObjectReport) {
+    if o.mismatch.is_empty() && o.effect != "none" {
+        let _ = writeln!(
+            md,
+            "**Locate.** The named effect shows in the motion of the objects this one strikes (see their sections), not in short open-loop predictions of its own: {} short deviation(s) beyond {:.1} mm are listed under `unexplained` in report.json.\n",
+            o.unexplained.len(),
+            o.locate_threshold_mm
+        );
+    } else if o.mismatch.is_empty() {
+        let _ = writeln!(
+            md,
+            "**Locate.** No systematic mismatch: {} short deviation(s) of open-loop predictions (0.2 s) beyond {:.1} mm, which no candidate effect explains.\n",
+            o.unexplained.len(),
+            o.locate_threshold_mm
+        );
+    } else {
+        let _ = writeln!(
+            md,
+            "**Locate.** Short open-loop predictions (0.2 s) miss the tracked object by more than {:.1} mm, and {} explains the miss, in the windows below (another {} short deviation(s) it does not explain are listed under `unexplained` in report.json):\n",
+            o.locate_threshold_mm,
+            o.explained_by
+                .as_ref()
+                .map_or("the named effect".to_string(), |e| format!(
+                    "an effect of another object ({e})"
+                )),
+            o.unexplained.len()
+        );
+        let _ = writeln!(
+            md,
+            "| from (s) | to (s) | region x (m) | region y (m) | phase | peak error (mm) |\n|---|---|---|---|---|---|"
+        );
+        for m in &o.mismatch {
+            let _ = writeln!(
+                md,
+                "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {} | {:.1} |",
+                m.t_start,
+                m.t_end,
+                m.region_min[0],
+                m.region_max[0],
+                m.region_min[1],
+                m.region_max[1],
+                m.phase,
+                m.peak_error_mm
+            );
+        }
+        md.push('\n');
+    }
+}
+
+/// Unexplained windows where the object sped up with nothing modelled touching it.
+fn driven_section(md: &mut String, o: &ObjectReport) {
+    let driven: Vec<&Mismatch> = o.unexplained.iter().filter(|m| m.sped_up).collect();
+    if !driven.is_empty() {
+        let _ = writeln!(
+            md,
+            "Moved by something outside the model: in these unexplained windows the object sped up with no modelled body touching it (an unmodelled push or agent; no candidate effect explains it):\n"
+        );
+        let _ = writeln!(
+            md,
+            "| from (s) | to (s) | region x (m) | region y (m) | peak error (mm) |\n|---|---|---|---|---|"
+        );
+        for m in driven {
+            let _ = writeln!(
+                md,
+                "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {:.1} |",
+                m.t_start,
+                m.t_end,
+                m.region_min[0],
+                m.region_max[0],
+                m.region_min[1],
+                m.region_max[1],
+                m.peak_error_mm
+            );
+        }
+        md.push('\n');
+    }
+}
+
+/// The named effect and its parameters, or why none is.
+fn name_section(md: &mut String, o: &ObjectReport) {
+    if o.effect == "none"
+        && let Some(by) = &o.explained_by
+    {
+        let _ = writeln!(
+            md,
+            "**Name.** No missing physics of its own: its mismatches are explained by {by}.\n"
+        );
+    } else if o.effect == "none" {
+        let _ = writeln!(
+            md,
+            "**Name.** No significant missing physics: no candidate effect cuts the held-out 1 s prediction error enough.\n"
+        );
+    } else {
+        let params: Vec<String> = o
+            .parameters
+            .iter()
+            .map(|p| match (p.low, p.high) {
+                (Some(l), Some(h)) => format!(
+                    "{} = {:.4} {} (95 % interval {:.4} .. {:.4})",
+                    p.name, p.value, p.unit, l, h
+                ),
+                _ => format!("{} = {:.4} {}", p.name, p.value, p.unit),
+            })
+            .collect();
+        let _ = writeln!(
+            md,
+            "**Name.** Missing effect: **{}**; {}.",
+            o.effect,
+            params.join("; ")
+        );
+        let _ = write!(
+            md,
+            "It removes {:.0} % of the held-out open-loop error",
+            o.explained_fraction * 100.0
+        );
+        if let Some(f) = o.residual_explained_fraction {
+            let _ = write!(
+                md,
+                " and explains {:.0} % of the held-out corrective force",
+                f * 100.0
+            );
+        }
+        md.push_str(".\n\n");
+        if let Some(n) = &o.named_fit {
+            let _ = writeln!(
+                md,
+                "**Model.** Fitted first on the replay with the current model: {} = {:.4} {} ({:.4} .. {:.4}); refined on a replay tracked with the effect added (tracking with a model that lacks an effect lags what it does).\n",
+                n.parameter, n.value, n.unit, n.low, n.high
+            );
+        }
+    }
+}
+
+/// Every candidate family's fit, and the residual regression.
+fn candidates_section(md: &mut String, o: &ObjectReport) {
+    let _ = writeln!(
+        md,
+        "Candidates (fitted open loop on {} windows before {:.2} s, judged on {} after):\n",
+        o.train_windows, o.heldout_from, o.heldout_windows
+    );
+    let _ = writeln!(
+        md,
+        "| effect | parameter | value | 95 % interval | fit gain | held-out gain |\n|---|---|---|---|---|---|"
+    );
+    for c in &o.candidates {
+        let _ = writeln!(
+            md,
+            "| {} | {} ({}) | {:.4} | {:.4} .. {:.4} | {:.0} % | {:.0} % |",
+            c.effect,
+            c.parameter,
+            c.unit,
+            c.value,
+            c.low,
+            c.high,
+            c.train_gain() * 100.0,
+            c.heldout_gain() * 100.0
+        );
+    }
+    let r = &o.regression;
+    let named: Vec<&str> = r.found.iter().map(|f| f.effect.as_str()).collect();
+    let _ = writeln!(
+        md,
+        "\nResidual regression (corrective force on candidate effects, held-out RMS {:.3} -> {:.3} N): {}.\n",
+        r.heldout_rms_before,
+        r.heldout_rms_after,
+        if named.is_empty() {
+            "nothing significant".to_string()
+        } else {
+            named.join(", ")
+        }
+    );
+}
+
+/// The held-out part before and after, and the plots.
+fn show_section(md: &mut String, o: &ObjectReport) {
+    let _ = writeln!(md, "**Show.** Held-out part, before -> after:\n");
+    let _ = writeln!(md, "| metric | before | after |\n|---|---|---|");
+    let _ = writeln!(
+        md,
+        "| open-loop error at 1 s (mm) | {:.1} | {:.1} |",
+        o.before.open_loop_error_mm, o.after.open_loop_error_mm
+    );
+    let _ = writeln!(
+        md,
+        "| corrective effort (N) | {:.3} | {:.3} |",
+        o.before.corrective_effort_n, o.after.corrective_effort_n
+    );
+    if let (Some(b), Some(a)) = (o.before.tracking_error_mm, o.after.tracking_error_mm) {
+        let _ = writeln!(md, "| tracking error (mm) | {b:.1} | {a:.1} |");
+    }
+    let _ = writeln!(
+        md,
+        "\n![residual over time]({0}_residual.png)\n![residual vs feature]({0}_feature.png)\n![paths]({0}_paths.png)\n",
+        o.object
+    );
 }

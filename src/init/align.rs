@@ -203,7 +203,7 @@ pub fn fit_silhouette(
     render: &RenderSettings,
 ) -> anyhow::Result<SilhouetteFit> {
     use crate::correct::adam::Adam;
-    use crate::render::{PixelGrads, footprint_roi};
+    use crate::render::footprint_roi;
     let ids = world.gaussians_of(shape);
     let mut cloud = GaussianCloud::from_world_where(world, |i| ids.binary_search(&i).is_ok());
     let all: Vec<usize> = (0..cloud.len()).collect();
@@ -231,58 +231,13 @@ pub fn fit_silhouette(
             cloud.opacity_logit[i] = opacity[i];
             cloud.log_scale[i] = Vec3::from_slice(&scale[3 * i..]);
         }
-        let (mut g_o, mut g_s) = (vec![0.0f32; n], vec![0.0f32; 3 * n]);
-        let mut iou_sum = 0.0;
-        for ((v, w), skip) in views.iter().zip(&windows).zip(ignore) {
-            if w.pixels() == 0 {
-                continue;
-            }
-            let out = renderer.forward(&cloud, &v.camera, *w);
-            let (mut inter, mut union) = (0usize, 0usize);
-            let mut d_alpha = vec![0.0f32; w.pixels()];
-            for y in w.y0..w.y1 {
-                for x in w.x0..w.x1 {
-                    let (k, full_k) = (
-                        ((y - w.y0) * w.width() + x - w.x0) as usize,
-                        (y * v.camera.width + x) as usize,
-                    );
-                    if skip[full_k] {
-                        continue;
-                    }
-                    let (a, m) = (out.alpha[k], v.mask[full_k]);
-                    inter += (a > 0.5 && m) as usize;
-                    union += (a > 0.5 || m) as usize;
-                    d_alpha[k] = 2.0 * (a - m as u8 as f32) / w.pixels() as f32;
-                }
-            }
-            iou_sum += if union == 0 {
-                1.0
-            } else {
-                inter as f32 / union as f32
-            };
-            if step == steps {
-                continue;
-            }
-            let g = renderer.backward(
-                &cloud,
-                &PixelGrads {
-                    colour: vec![Vec3::ZERO; w.pixels()],
-                    alpha: d_alpha,
-                    ..Default::default()
-                },
-            )?;
-            for i in 0..n {
-                g_o[i] += g.opacity_logit[i];
-                for j in 0..3 {
-                    g_s[3 * i + j] += g.log_scale[i][j];
-                }
-            }
-        }
+        let last = step == steps;
+        let (iou_sum, g_o, g_s) = mask_loss(&cloud, &mut renderer, views, &windows, ignore, !last)?;
         let iou = iou_sum / views.len().max(1) as f32;
         if step == 0 {
             fit.iou_before = iou;
         }
-        if step == steps {
+        if last {
             fit.iou_after = iou;
             break;
         }
@@ -299,6 +254,63 @@ pub fn fit_silhouette(
         world.gaussians.scale[i] = Vec3::new(s.x.exp(), s.y.exp(), s.z.exp());
     }
     Ok(fit)
+}
+
+/// The silhouette IoU summed over the views and, if `gradient`, the gradients of the mask loss with
+/// respect to the opacity logits and log-scales.
+fn mask_loss(
+    cloud: &GaussianCloud,
+    renderer: &mut CpuRenderer,
+    views: &[MaskView],
+    windows: &[Roi],
+    ignore: &[Vec<bool>],
+    gradient: bool,
+) -> anyhow::Result<(f32, Vec<f32>, Vec<f32>)> {
+    let n = cloud.len();
+    let (mut g_o, mut g_s) = (vec![0.0f32; n], vec![0.0f32; 3 * n]);
+    let mut iou_sum = 0.0;
+    for ((v, w), skip) in views.iter().zip(windows).zip(ignore) {
+        if w.pixels() == 0 {
+            continue;
+        }
+        let out = renderer.forward(cloud, &v.camera, *w);
+        let (mut inter, mut union) = (0usize, 0usize);
+        let mut d_alpha = vec![0.0f32; w.pixels()];
+        for y in w.y0..w.y1 {
+            for x in w.x0..w.x1 {
+                let k = ((y - w.y0) * w.width() + x - w.x0) as usize;
+                let full_k = (y * v.camera.width + x) as usize;
+                if skip[full_k] {
+                    continue;
+                }
+                let (a, m) = (out.alpha[k], v.mask[full_k]);
+                inter += (a > 0.5 && m) as usize;
+                union += (a > 0.5 || m) as usize;
+                d_alpha[k] = 2.0 * (a - m as u8 as f32) / w.pixels() as f32;
+            }
+        }
+        iou_sum += if union == 0 {
+            1.0
+        } else {
+            inter as f32 / union as f32
+        };
+        if !gradient {
+            continue;
+        }
+        let pixels = crate::render::PixelGrads {
+            colour: vec![Vec3::ZERO; w.pixels()],
+            alpha: d_alpha,
+            ..Default::default()
+        };
+        let g = renderer.backward(cloud, &pixels)?;
+        for i in 0..n {
+            g_o[i] += g.opacity_logit[i];
+            for j in 0..3 {
+                g_s[3 * i + j] += g.log_scale[i][j];
+            }
+        }
+    }
+    Ok((iou_sum, g_o, g_s))
 }
 
 /// Compass search: try a step up and down each coordinate, take the best gain, halve the steps

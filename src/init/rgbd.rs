@@ -341,161 +341,28 @@ pub fn object_from_rgbd(
     for f in frames {
         f.check()?;
     }
-    let (normal, height) = (ground.0.normalize(), ground.1);
-    // Masked depth points, away from the mask's edge (mixed depths at silhouettes).
-    let mut points: Vec<Vec3> = Vec::new();
-    for f in frames {
-        let (w, h) = (f.camera.width as usize, f.camera.height as usize);
-        for y in 1..h.saturating_sub(1) {
-            for x in 1..w.saturating_sub(1) {
-                let k = y * w + x;
-                let interior = [k, k - 1, k + 1, k - w, k + w]
-                    .iter()
-                    .all(|&j| f.labels[j] == label);
-                if interior && let Some(p) = f.point(k) {
-                    points.push(p);
-                }
-            }
-        }
-    }
+    let points = masked_points(frames, label);
     if points.len() < 10 {
         bail!(
             "object '{name}' (label {label}): only {} depth points in its masks",
             points.len()
         );
     }
-    // Stray labels (a few pixels of something else) must not stretch the box: keep the points
-    // within the bulk of the heights.
-    let mut heights: Vec<f32> = points.iter().map(|p| normal.dot(*p) - height).collect();
-    heights.sort_by(f32::total_cmp);
-    let quantile = |v: &[f32], q: f32| v[((v.len() - 1) as f32 * q).round() as usize];
-    let (h_lo, h_hi) = (
-        quantile(&heights, 0.005) - 2.0 * radius,
-        quantile(&heights, 0.995) + 2.0 * radius,
-    );
-    points.retain(|p| (h_lo..=h_hi).contains(&(normal.dot(*p) - height)));
-    // Oriented box standing on the ground: the in-plane turn with the smallest rectangle.
-    let e1 = normal.any_orthonormal_vector();
-    let e2 = normal.cross(e1);
-    let flat: Vec<Vec2> = points
-        .iter()
-        .map(|p| Vec2::new(p.dot(e1), p.dot(e2)))
-        .collect();
-    // The rectangle of the points along each rotated axis.
-    let rect = |angle: f32| {
-        let (s, c) = angle.sin_cos();
-        let u: Vec<f32> = flat.iter().map(|q| c * q.x + s * q.y).collect();
-        let v: Vec<f32> = flat.iter().map(|q| -s * q.x + c * q.y).collect();
-        let u = [
-            u.iter().copied().fold(f32::INFINITY, f32::min),
-            u.iter().copied().fold(f32::NEG_INFINITY, f32::max),
-        ];
-        let v = [
-            v.iter().copied().fold(f32::INFINITY, f32::min),
-            v.iter().copied().fold(f32::NEG_INFINITY, f32::max),
-        ];
-        (
-            Vec2::new(u[0], v[0]),
-            Vec2::new(u[u.len() - 1], v[v.len() - 1]),
-        )
-    };
-    let angle = (0..180)
-        .map(|k| (k as f32 * 0.5).to_radians())
-        .min_by(|a, b| {
-            let area = |x: f32| {
-                let (lo, hi) = rect(x);
-                (hi - lo).x * (hi - lo).y
-            };
-            area(*a).total_cmp(&area(*b))
-        });
-    let angle = angle.unwrap_or(0.0);
-    let (lo, hi) = rect(angle);
-    let (lo, hi) = (
-        lo - Vec2::splat(surface_inset),
-        hi + Vec2::splat(surface_inset),
-    );
-    let top = quantile(&heights, 0.995) + surface_inset;
-    let size = Vec3::new(hi.x - lo.x, hi.y - lo.y, top);
-    let (s, c) = angle.sin_cos();
-    // Body axes: x, y along the rectangle, z along the ground normal; origin at the box centre.
-    let ax = e1 * c + e2 * s;
-    let ay = normal.cross(ax);
-    let mid = (lo + hi) / 2.0;
-    let centre_flat = ax * mid.x + ay * mid.y;
-    let centre = centre_flat - normal * normal.dot(centre_flat) + normal * (height + top / 2.0);
-    let rotation = Quat::from_mat3(&glam::Mat3::from_cols(ax, ay, normal)).normalize();
-    let pose = Pose::new(centre, rotation);
-    // Lattice of touching particles (spacing 2 x radius): as many as fit the measured size,
-    // centred in the plane and stacked from the ground up.
-    let cells = |extent: f32| ((extent / (2.0 * radius)).round() as usize).max(1);
-    let (nx, ny, nz) = (cells(size.x), cells(size.y), cells(size.z));
+    let (points, bulk) = within_bulk(points, ground, radius);
+    let (pose, size) = standing_box(&points, ground, bulk.1, surface_inset);
     let step = 2.0 * radius;
-    let mut lattice = Vec::with_capacity(nx * ny * nz);
-    for k in 0..nz {
-        for j in 0..ny {
-            for i in 0..nx {
-                let x = (i as f32 - (nx - 1) as f32 / 2.0) * step;
-                let y = (j as f32 - (ny - 1) as f32 / 2.0) * step;
-                lattice.push(Vec3::new(x, y, radius + k as f32 * step - size.z / 2.0));
-            }
-        }
-    }
-    // Carving: a cell is empty if some camera sees past it (a surface further away at its pixel,
-    // the object's own far side included), or sees no depth there and not the object (mask).
-    let tolerance = 0.5 * step;
-    let kept: Vec<Vec3> = lattice
-        .iter()
-        .copied()
-        .filter(|b| {
-            let p = pose.transform_point(*b);
-            !frames.iter().any(|f| {
-                let (u, v, z) = f.camera.project(p);
-                if !(z > 0.0
-                    && u >= 0.0
-                    && v >= 0.0
-                    && u < f.camera.width as f32
-                    && v < f.camera.height as f32)
-                {
-                    return false;
-                }
-                let k = (v as u32 * f.camera.width + u as u32) as usize;
-                let d = f.depth[k];
-                if d.is_finite() && d > 0.0 {
-                    d > z + tolerance
-                } else {
-                    f.labels[k] != label
-                }
-            })
-        })
-        .collect();
+    let lattice = box_cells(size, radius);
+    let kept = carve(&lattice, &pose, frames, label, step);
     if kept.is_empty() {
         bail!("object '{name}': every cell of its bounding box was carved away");
     }
     // One spherical Gaussian per cell, coloured from the images inside the object's masks.
-    let mut cloud = GaussianCloud::default();
-    let mean_colour = {
-        let (sum, n) = frames
-            .iter()
-            .flat_map(|f| f.colour.iter().zip(f.labels))
-            .filter(|(_, l)| **l == label)
-            .fold((Vec3::ZERO, 0usize), |(s, n), (c, _)| (s + *c, n + 1));
-        sum / n.max(1) as f32
-    };
-    let sigma = 0.6 * radius;
-    let q = Vec4::new(rotation.x, rotation.y, rotation.z, rotation.w);
-    for b in &kept {
-        cloud.push(GaussianParams {
-            mean: pose.transform_point(*b),
-            rotation: q,
-            log_scale: Vec3::splat(sigma.ln()),
-            opacity_logit: logit(0.95),
-            colour: mean_colour,
-        });
-    }
     let object_render = RenderSettings {
         background: Vec3::ZERO,
         ..render.clone()
     };
+    let sigma = 0.6 * radius;
+    let mut cloud = cell_gaussians(&kept, &pose, sigma, mean_colour(frames, label));
     let fit_frames: Vec<FitFrame> = frames
         .iter()
         .map(|f| FitFrame {
@@ -523,49 +390,7 @@ pub fn object_from_rgbd(
     // Particles at the Gaussians' locations.
     let inv = pose.inverse();
     let body: Vec<Vec3> = cloud.mean.iter().map(|m| inv.transform_point(*m)).collect();
-    // Densify: the Gaussians of surface particles (a lattice neighbour missing) split into eight of
-    // half the size for finer appearance, their colours fitted again; all bond to their particle.
-    let occupied: std::collections::HashSet<[i32; 3]> =
-        kept.iter().map(|b| cell_key(*b, step)).collect();
-    let surface: Vec<bool> = kept
-        .iter()
-        .map(|b| {
-            let k = cell_key(*b, step);
-            [
-                [1, 0, 0],
-                [-1, 0, 0],
-                [0, 1, 0],
-                [0, -1, 0],
-                [0, 0, 1],
-                [0, 0, -1],
-            ]
-            .iter()
-            .any(|d| !occupied.contains(&[k[0] + d[0], k[1] + d[1], k[2] + d[2]]))
-        })
-        .collect();
-    let mut dense = GaussianCloud::default();
-    let mut owner = Vec::new();
-    for (i, b) in body.iter().enumerate() {
-        let g = cloud.get(i);
-        if !surface[i] {
-            dense.push(g);
-            owner.push(i);
-            continue;
-        }
-        for corner in 0..8 {
-            let o = Vec3::new(
-                if corner & 1 == 0 { -0.5 } else { 0.5 },
-                if corner & 2 == 0 { -0.5 } else { 0.5 },
-                if corner & 4 == 0 { -0.5 } else { 0.5 },
-            ) * radius;
-            dense.push(GaussianParams {
-                mean: pose.transform_point(*b + o),
-                log_scale: Vec3::splat((sigma / 2.0).ln()),
-                ..g
-            });
-            owner.push(i);
-        }
-    }
+    let mut dense = densified(&cloud, &body, &kept, &pose, radius, sigma);
     let densified = fit_colours(
         &mut dense,
         &fit_frames,
@@ -597,15 +422,227 @@ pub fn object_from_rgbd(
         seconds: clock.elapsed().as_secs_f64(),
     };
     let particles = body.iter().map(|b| (*b, radius)).collect();
-    Ok((
-        ObjectModel {
-            name: name.to_string(),
-            pose,
-            particles,
-            gaussians,
-        },
-        report,
-    ))
+    let model = ObjectModel {
+        name: name.to_string(),
+        pose,
+        particles,
+        gaussians,
+    };
+    Ok((model, report))
+}
+
+/// Masked depth points, away from the mask's edge (mixed depths at silhouettes).
+fn masked_points(frames: &[RgbdFrame], label: u8) -> Vec<Vec3> {
+    let mut points: Vec<Vec3> = Vec::new();
+    for f in frames {
+        let (w, h) = (f.camera.width as usize, f.camera.height as usize);
+        for y in 1..h.saturating_sub(1) {
+            for x in 1..w.saturating_sub(1) {
+                let k = y * w + x;
+                let interior = [k, k - 1, k + 1, k - w, k + w]
+                    .iter()
+                    .all(|&j| f.labels[j] == label);
+                if interior && let Some(p) = f.point(k) {
+                    points.push(p);
+                }
+            }
+        }
+    }
+    points
+}
+
+fn quantile(v: &[f32], q: f32) -> f32 {
+    v[((v.len() - 1) as f32 * q).round() as usize]
+}
+
+/// Stray labels (a few pixels of something else) must not stretch the box: the points within the
+/// bulk of the heights above the ground, and the bulk's lowest and highest height.
+fn within_bulk(
+    mut points: Vec<Vec3>,
+    (normal, height): (Vec3, f32),
+    radius: f32,
+) -> (Vec<Vec3>, (f32, f32)) {
+    let normal = normal.normalize();
+    let mut heights: Vec<f32> = points.iter().map(|p| normal.dot(*p) - height).collect();
+    heights.sort_by(f32::total_cmp);
+    let bulk = (quantile(&heights, 0.005), quantile(&heights, 0.995));
+    let (h_lo, h_hi) = (bulk.0 - 2.0 * radius, bulk.1 + 2.0 * radius);
+    points.retain(|p| (h_lo..=h_hi).contains(&(normal.dot(*p) - height)));
+    (points, bulk)
+}
+
+/// The oriented box standing on the ground that holds `points`: the in-plane turn with the
+/// smallest rectangle, up to `top` above the ground, grown by `surface_inset`. Its pose (body x,
+/// y along the rectangle, z along the ground normal, origin at the centre) and size.
+fn standing_box(
+    points: &[Vec3],
+    ground: (Vec3, f32),
+    top: f32,
+    surface_inset: f32,
+) -> (Pose, Vec3) {
+    let (normal, height) = (ground.0.normalize(), ground.1);
+    let e1 = normal.any_orthonormal_vector();
+    let e2 = normal.cross(e1);
+    let flat: Vec<Vec2> = points
+        .iter()
+        .map(|p| Vec2::new(p.dot(e1), p.dot(e2)))
+        .collect();
+    // The rectangle of the points along each rotated axis.
+    let rect = |angle: f32| {
+        let (s, c) = angle.sin_cos();
+        let u: Vec<f32> = flat.iter().map(|q| c * q.x + s * q.y).collect();
+        let v: Vec<f32> = flat.iter().map(|q| -s * q.x + c * q.y).collect();
+        let span = |w: &[f32]| {
+            let lo = w.iter().copied().fold(f32::INFINITY, f32::min);
+            (lo, w.iter().copied().fold(f32::NEG_INFINITY, f32::max))
+        };
+        let (u, v) = (span(&u), span(&v));
+        (Vec2::new(u.0, v.0), Vec2::new(u.1, v.1))
+    };
+    let area = |x: f32| {
+        let (lo, hi) = rect(x);
+        (hi - lo).x * (hi - lo).y
+    };
+    let angle = (0..180)
+        .map(|k| (k as f32 * 0.5).to_radians())
+        .min_by(|a, b| area(*a).total_cmp(&area(*b)))
+        .unwrap_or(0.0);
+    let (lo, hi) = rect(angle);
+    let (lo, hi) = (
+        lo - Vec2::splat(surface_inset),
+        hi + Vec2::splat(surface_inset),
+    );
+    let top = top + surface_inset;
+    let size = Vec3::new(hi.x - lo.x, hi.y - lo.y, top);
+    let (s, c) = angle.sin_cos();
+    let ax = e1 * c + e2 * s;
+    let ay = normal.cross(ax);
+    let mid = (lo + hi) / 2.0;
+    let centre_flat = ax * mid.x + ay * mid.y;
+    let centre = centre_flat - normal * normal.dot(centre_flat) + normal * (height + top / 2.0);
+    let rotation = Quat::from_mat3(&glam::Mat3::from_cols(ax, ay, normal)).normalize();
+    (Pose::new(centre, rotation), size)
+}
+
+/// A lattice of touching particles (spacing 2 x radius) in the body frame: as many as fit `size`,
+/// centred in the plane and stacked from the ground up.
+fn box_cells(size: Vec3, radius: f32) -> Vec<Vec3> {
+    let cells = |extent: f32| ((extent / (2.0 * radius)).round() as usize).max(1);
+    let (nx, ny, nz) = (cells(size.x), cells(size.y), cells(size.z));
+    let step = 2.0 * radius;
+    let mut lattice = Vec::with_capacity(nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let x = (i as f32 - (nx - 1) as f32 / 2.0) * step;
+                let y = (j as f32 - (ny - 1) as f32 / 2.0) * step;
+                lattice.push(Vec3::new(x, y, radius + k as f32 * step - size.z / 2.0));
+            }
+        }
+    }
+    lattice
+}
+
+/// Carving: a cell is empty if some camera sees past it (a surface further away at its pixel, the
+/// object's own far side included), or sees no depth there and not the object (mask).
+fn carve(lattice: &[Vec3], pose: &Pose, frames: &[RgbdFrame], label: u8, step: f32) -> Vec<Vec3> {
+    let tolerance = 0.5 * step;
+    let sees_past = |f: &RgbdFrame, p: Vec3| {
+        let (u, v, z) = f.camera.project(p);
+        let (w, h) = (f.camera.width as f32, f.camera.height as f32);
+        if !(z > 0.0 && u >= 0.0 && v >= 0.0 && u < w && v < h) {
+            return false;
+        }
+        let k = (v as u32 * f.camera.width + u as u32) as usize;
+        let d = f.depth[k];
+        if d.is_finite() && d > 0.0 {
+            d > z + tolerance
+        } else {
+            f.labels[k] != label
+        }
+    };
+    lattice
+        .iter()
+        .copied()
+        .filter(|b| {
+            let p = pose.transform_point(*b);
+            !frames.iter().any(|f| sees_past(f, p))
+        })
+        .collect()
+}
+
+/// The mean colour inside the object's masks.
+fn mean_colour(frames: &[RgbdFrame], label: u8) -> Vec3 {
+    let (sum, n) = frames
+        .iter()
+        .flat_map(|f| f.colour.iter().zip(f.labels))
+        .filter(|(_, l)| **l == label)
+        .fold((Vec3::ZERO, 0usize), |(s, n), (c, _)| (s + *c, n + 1));
+    sum / n.max(1) as f32
+}
+
+/// One spherical Gaussian of deviation `sigma` per kept cell.
+fn cell_gaussians(kept: &[Vec3], pose: &Pose, sigma: f32, colour: Vec3) -> GaussianCloud {
+    let mut cloud = GaussianCloud::default();
+    let r = pose.rotation;
+    let q = Vec4::new(r.x, r.y, r.z, r.w);
+    for b in kept {
+        cloud.push(GaussianParams {
+            mean: pose.transform_point(*b),
+            rotation: q,
+            log_scale: Vec3::splat(sigma.ln()),
+            opacity_logit: logit(0.95),
+            colour,
+        });
+    }
+    cloud
+}
+
+/// Densify: the Gaussians of surface particles (a lattice neighbour missing) split into eight of
+/// half the size for finer appearance; all stay bonded to their particle.
+fn densified(
+    cloud: &GaussianCloud,
+    body: &[Vec3],
+    kept: &[Vec3],
+    pose: &Pose,
+    radius: f32,
+    sigma: f32,
+) -> GaussianCloud {
+    let step = 2.0 * radius;
+    let occupied: std::collections::HashSet<[i32; 3]> =
+        kept.iter().map(|b| cell_key(*b, step)).collect();
+    const FACES: [[i32; 3]; 6] = [
+        [1, 0, 0],
+        [-1, 0, 0],
+        [0, 1, 0],
+        [0, -1, 0],
+        [0, 0, 1],
+        [0, 0, -1],
+    ];
+    let surface = |b: Vec3| {
+        let k = cell_key(b, step);
+        FACES
+            .iter()
+            .any(|d| !occupied.contains(&[k[0] + d[0], k[1] + d[1], k[2] + d[2]]))
+    };
+    let mut dense = GaussianCloud::default();
+    for (i, b) in body.iter().enumerate() {
+        let g = cloud.get(i);
+        if !surface(kept[i]) {
+            dense.push(g);
+            continue;
+        }
+        for corner in 0..8 {
+            let half = |bit: usize| if corner & bit == 0 { -0.5 } else { 0.5 };
+            let o = Vec3::new(half(1), half(2), half(4)) * radius;
+            dense.push(GaussianParams {
+                mean: pose.transform_point(*b + o),
+                log_scale: Vec3::splat((sigma / 2.0).ln()),
+                ..g
+            });
+        }
+    }
+    dense
 }
 
 fn cell_key(b: Vec3, step: f32) -> [i32; 3] {
@@ -635,7 +672,7 @@ fn refine_positions(
     render: &RenderSettings,
 ) -> Result<RefineReport> {
     use crate::correct::adam::Adam;
-    use crate::render::{PixelGrads, Roi, cpu::CpuRenderer, footprint_roi};
+    use crate::render::{Roi, cpu::CpuRenderer, footprint_roi};
     const ROUNDS: u32 = 10;
     let n = cloud.len();
     let all: Vec<usize> = (0..n).collect();
@@ -652,58 +689,22 @@ fn refine_positions(
         rounds: ROUNDS,
         ..Default::default()
     };
+    let views = MaskedViews {
+        frames,
+        masks,
+        windows: &windows,
+    };
     for round in 0..=ROUNDS {
         for it in 0..5 {
             for i in 0..n {
                 cloud.mean[i] = Vec3::from_slice(&means[3 * i..]);
             }
-            let mut grad = vec![0.0f32; 3 * n];
-            let mut iou = 0.0;
-            for ((f, w), mask) in frames.iter().zip(&windows).zip(masks) {
-                if w.pixels() == 0 {
-                    continue;
-                }
-                let out = renderer.forward(cloud, &f.camera, *w);
-                let (mut d_colour, mut d_alpha) =
-                    (vec![Vec3::ZERO; w.pixels()], vec![0.0f32; w.pixels()]);
-                let (mut inter, mut union) = (0usize, 0usize);
-                for y in w.y0..w.y1 {
-                    for x in w.x0..w.x1 {
-                        let (k, full) = (
-                            ((y - w.y0) * w.width() + x - w.x0) as usize,
-                            (y * f.camera.width + x) as usize,
-                        );
-                        let m = mask[full];
-                        if m {
-                            d_colour[k] =
-                                2.0 * (out.colour[k] - f.colour[full]) / w.pixels() as f32;
-                        }
-                        d_alpha[k] = 2.0 * (out.alpha[k] - m as u8 as f32) / w.pixels() as f32;
-                        inter += (out.alpha[k] > 0.5 && m) as usize;
-                        union += (out.alpha[k] > 0.5 || m) as usize;
-                    }
-                }
-                iou += inter as f32 / union.max(1) as f32 / frames.len() as f32;
-                if round < ROUNDS {
-                    let g = renderer.backward(
-                        cloud,
-                        &PixelGrads {
-                            colour: d_colour,
-                            alpha: d_alpha,
-                            ..Default::default()
-                        },
-                    )?;
-                    for (i, gm) in g.mean.iter().enumerate() {
-                        for j in 0..3 {
-                            grad[3 * i + j] += gm[j];
-                        }
-                    }
-                }
-            }
+            let last = round == ROUNDS;
+            let (iou, grad) = views.loss(cloud, &mut renderer, !last)?;
             if round == 0 && it == 0 {
                 report.iou_before = iou;
             }
-            if round == ROUNDS {
+            if last {
                 report.iou_after = iou;
                 break;
             }
@@ -715,16 +716,7 @@ fn refine_positions(
         for _ in 0..4 {
             jacobi_separate(&mut means, radius, ground);
         }
-        // Carving fixed the shape; the rounds only refine the surfaces: every Gaussian stays
-        // within half a radius of its cell.
-        for (i, s0) in start.iter().enumerate() {
-            let m = Vec3::from_slice(&means[3 * i..]);
-            let d = m - *s0;
-            if d.length() > 0.5 * radius {
-                means[3 * i..3 * i + 3]
-                    .copy_from_slice(&(*s0 + d.normalize() * 0.5 * radius).to_array());
-            }
-        }
+        keep_near_cells(&mut means, &start, radius);
     }
     for i in 0..n {
         cloud.mean[i] = Vec3::from_slice(&means[3 * i..]);
@@ -737,6 +729,79 @@ fn refine_positions(
         .fold(0.0, f32::max)
         * 1e3;
     Ok(report)
+}
+
+/// Carving fixed the shape; the rounds only refine the surfaces: every Gaussian stays within half
+/// a radius of its cell.
+fn keep_near_cells(means: &mut [f32], start: &[Vec3], radius: f32) {
+    for (i, s0) in start.iter().enumerate() {
+        let m = Vec3::from_slice(&means[3 * i..]);
+        let d = m - *s0;
+        if d.length() > 0.5 * radius {
+            means[3 * i..3 * i + 3]
+                .copy_from_slice(&(*s0 + d.normalize() * 0.5 * radius).to_array());
+        }
+    }
+}
+
+/// The frames, the object's masks in them, and the window around the object in each.
+struct MaskedViews<'a> {
+    frames: &'a [RgbdFrame<'a>],
+    masks: &'a [Vec<bool>],
+    windows: &'a [crate::render::Roi],
+}
+
+impl MaskedViews<'_> {
+    /// The mean silhouette IoU over the frames and, if `gradient`, the gradient with respect to
+    /// the means of the photometric loss inside the masks plus the mask loss.
+    fn loss(
+        &self,
+        cloud: &GaussianCloud,
+        renderer: &mut crate::render::cpu::CpuRenderer,
+        gradient: bool,
+    ) -> Result<(f32, Vec<f32>)> {
+        let mut grad = vec![0.0f32; 3 * cloud.len()];
+        let mut iou = 0.0;
+        let frames = self.frames;
+        for ((f, w), mask) in frames.iter().zip(self.windows).zip(self.masks) {
+            if w.pixels() == 0 {
+                continue;
+            }
+            let out = renderer.forward(cloud, &f.camera, *w);
+            let (mut d_colour, mut d_alpha) =
+                (vec![Vec3::ZERO; w.pixels()], vec![0.0f32; w.pixels()]);
+            let (mut inter, mut union) = (0usize, 0usize);
+            for y in w.y0..w.y1 {
+                for x in w.x0..w.x1 {
+                    let k = ((y - w.y0) * w.width() + x - w.x0) as usize;
+                    let full = (y * f.camera.width + x) as usize;
+                    let m = mask[full];
+                    if m {
+                        d_colour[k] = 2.0 * (out.colour[k] - f.colour[full]) / w.pixels() as f32;
+                    }
+                    d_alpha[k] = 2.0 * (out.alpha[k] - m as u8 as f32) / w.pixels() as f32;
+                    inter += (out.alpha[k] > 0.5 && m) as usize;
+                    union += (out.alpha[k] > 0.5 || m) as usize;
+                }
+            }
+            iou += inter as f32 / union.max(1) as f32 / frames.len() as f32;
+            if !gradient {
+                continue;
+            }
+            let pixels = crate::render::PixelGrads {
+                colour: d_colour,
+                alpha: d_alpha,
+                ..Default::default()
+            };
+            let g = renderer.backward(cloud, &pixels)?;
+            for (i, gm) in g.mean.iter().enumerate() {
+                for j in 0..3 {
+                    grad[3 * i + j] += gm[j];
+                }
+            }
+        }
+        Ok((iou, grad))
+    }
 }
 
 /// One Jacobi step over spheres of `radius` at `means` (x, y, z flattened): overlapping pairs are

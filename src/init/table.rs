@@ -180,62 +180,14 @@ pub fn fit_colours(
         bail!("table fit: an image or mask does not match its camera");
     }
     let factor = (1.0 / resolution.clamp(0.05, 1.0)).round() as u32;
-    let shrunk: Vec<_> = frames.iter().map(|f| shrink(f, factor)).collect();
+    let shrunk: Vec<Shrunk> = frames.iter().map(|f| shrink(f, factor)).collect();
     let mut renderer = CpuRenderer::new(render.clone());
     let mut adam = Adam::new(0.9, 0.999, 1e-8);
     let n = cloud.len();
     adam.reset(3 * n);
     let mut colours: Vec<f32> = cloud.colour.iter().flat_map(|c| c.to_array()).collect();
-    const EPS: f32 = 0.02;
-    // Pixels' worth of weight (sum of a Gaussian's blending weights over the fitted pixels).
-    const MIN_VISIBILITY: f32 = 1.0;
-    // Per Gaussian, the cameras that see it (distinct poses among the frames).
-    let mut views: Vec<Camera> = Vec::new();
-    let mut visibility = vec![Vec::<f32>::new(); n];
-    for (camera, _, ignore) in &shrunk {
-        let view = match views.iter().position(|c| c == camera) {
-            Some(v) => v,
-            None => {
-                views.push(*camera);
-                views.len() - 1
-            }
-        };
-        renderer.forward(cloud, camera, Roi::full(camera));
-        let ones: Vec<Vec3> = ignore
-            .iter()
-            .map(|&i| if i { Vec3::ZERO } else { Vec3::ONE })
-            .collect();
-        let g = renderer.backward(
-            cloud,
-            &PixelGrads {
-                colour: ones,
-                ..Default::default()
-            },
-        )?;
-        for (v, c) in visibility.iter_mut().zip(&g.colour) {
-            v.resize(views.len(), 0.0);
-            v[view] += c.x;
-        }
-    }
-    // Fitted: Gaussians that two cameras see (one camera cannot tell the table from something
-    // standing on it), or all of them when there is only one camera.
-    let needed = views.len().min(2);
-    let fitted: Vec<bool> = visibility
-        .iter()
-        .map(|v| v.iter().filter(|w| **w >= MIN_VISIBILITY).count() >= needed)
-        .collect();
-    let bar = if progress {
-        indicatif::ProgressBar::new(steps as u64 + 1)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "fitting colours of {prefix} Gaussians [{bar:30}] {pos}/{len} {elapsed}",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    bar.set_prefix(cloud.len().to_string());
+    let fitted = seen_by_enough_cameras(cloud, &shrunk, &mut renderer)?;
+    let bar = progress_bar(progress, steps as u64 + 1, n);
     let mut fit = ColourFit {
         gaussians: n,
         steps,
@@ -245,41 +197,12 @@ pub fn fit_colours(
         for (i, c) in cloud.colour.iter_mut().enumerate() {
             *c = Vec3::from_slice(&colours[3 * i..]);
         }
-        let mut grad = vec![0.0f32; 3 * n];
-        let (mut error, mut counted) = (0.0f32, 0usize);
-        for (camera, image, ignore) in &shrunk {
-            let out = renderer.forward(cloud, camera, Roi::full(camera));
-            let mut d = vec![Vec3::ZERO; image.len()];
-            for k in 0..image.len() {
-                if ignore[k] {
-                    continue;
-                }
-                let r = out.colour[k] - image[k];
-                error += r.abs().element_sum() / 3.0;
-                counted += 1;
-                d[k] = r / (r * r + Vec3::splat(EPS * EPS)).powf(0.5);
-            }
-            if step == steps {
-                continue;
-            }
-            let g = renderer.backward(
-                cloud,
-                &PixelGrads {
-                    colour: d,
-                    ..Default::default()
-                },
-            )?;
-            for (i, c) in g.colour.iter().enumerate() {
-                for j in 0..3 {
-                    grad[3 * i + j] += c[j];
-                }
-            }
-        }
-        let error = error / counted.max(1) as f32;
+        let last = step == steps;
+        let (error, mut grad) = colour_loss(cloud, &shrunk, &mut renderer, !last)?;
         if step == 0 {
             fit.error_before = error;
         }
-        if step == steps {
+        if last {
             fit.error_after = error;
             break;
         }
@@ -300,6 +223,108 @@ pub fn fit_colours(
     bar.finish_and_clear();
     fit.seconds = clock.elapsed().as_secs_f64();
     Ok(fit)
+}
+
+/// A frame at the fit's resolution: camera, image, pixels left out.
+type Shrunk = (Camera, Vec<Vec3>, Vec<bool>);
+
+/// Pixels' worth of weight (sum of a Gaussian's blending weights over the fitted pixels) for a
+/// camera to count as seeing a Gaussian.
+const MIN_VISIBILITY: f32 = 1.0;
+
+/// The Gaussians fitted: those that two cameras see (one camera cannot tell the table from
+/// something standing on it), or all that one sees when there is only one camera.
+fn seen_by_enough_cameras(
+    cloud: &GaussianCloud,
+    shrunk: &[Shrunk],
+    renderer: &mut CpuRenderer,
+) -> Result<Vec<bool>> {
+    // Per Gaussian, the cameras that see it (distinct poses among the frames).
+    let mut views: Vec<Camera> = Vec::new();
+    let mut visibility = vec![Vec::<f32>::new(); cloud.len()];
+    for (camera, _, ignore) in shrunk {
+        let view = match views.iter().position(|c| c == camera) {
+            Some(v) => v,
+            None => {
+                views.push(*camera);
+                views.len() - 1
+            }
+        };
+        renderer.forward(cloud, camera, Roi::full(camera));
+        let ones: Vec<Vec3> = ignore
+            .iter()
+            .map(|&i| if i { Vec3::ZERO } else { Vec3::ONE })
+            .collect();
+        let pixels = PixelGrads {
+            colour: ones,
+            ..Default::default()
+        };
+        let g = renderer.backward(cloud, &pixels)?;
+        for (v, c) in visibility.iter_mut().zip(&g.colour) {
+            v.resize(views.len(), 0.0);
+            v[view] += c.x;
+        }
+    }
+    let needed = views.len().min(2);
+    Ok(visibility
+        .iter()
+        .map(|v| v.iter().filter(|w| **w >= MIN_VISIBILITY).count() >= needed)
+        .collect())
+}
+
+/// The mean absolute colour error over the used pixels and, if `gradient`, the smoothed-L1
+/// gradient with respect to every colour channel (zero otherwise).
+fn colour_loss(
+    cloud: &GaussianCloud,
+    shrunk: &[Shrunk],
+    renderer: &mut CpuRenderer,
+    gradient: bool,
+) -> Result<(f32, Vec<f32>)> {
+    const EPS: f32 = 0.02;
+    let mut grad = vec![0.0f32; 3 * cloud.len()];
+    let (mut error, mut counted) = (0.0f32, 0usize);
+    for (camera, image, ignore) in shrunk {
+        let out = renderer.forward(cloud, camera, Roi::full(camera));
+        let mut d = vec![Vec3::ZERO; image.len()];
+        for k in 0..image.len() {
+            if ignore[k] {
+                continue;
+            }
+            let r = out.colour[k] - image[k];
+            error += r.abs().element_sum() / 3.0;
+            counted += 1;
+            d[k] = r / (r * r + Vec3::splat(EPS * EPS)).powf(0.5);
+        }
+        if !gradient {
+            continue;
+        }
+        let pixels = PixelGrads {
+            colour: d,
+            ..Default::default()
+        };
+        let g = renderer.backward(cloud, &pixels)?;
+        for (i, c) in g.colour.iter().enumerate() {
+            for j in 0..3 {
+                grad[3 * i + j] += c[j];
+            }
+        }
+    }
+    Ok((error / counted.max(1) as f32, grad))
+}
+
+fn progress_bar(progress: bool, len: u64, gaussians: usize) -> indicatif::ProgressBar {
+    let bar = if progress {
+        indicatif::ProgressBar::new(len)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let style = indicatif::ProgressStyle::with_template(
+        "fitting colours of {prefix} Gaussians [{bar:30}] {pos}/{len} {elapsed}",
+    )
+    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+    bar.set_style(style);
+    bar.set_prefix(gaussians.to_string());
+    bar
 }
 
 #[cfg(test)]

@@ -10,6 +10,7 @@ import csv
 import json
 import math
 import os
+import re
 import struct
 import subprocess
 import sys
@@ -220,6 +221,7 @@ def main_run(recording, ros):
         p = Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value))
         return call(node, setter, SetParameters.Request(parameters=[p])).results[0]
 
+    params["set_at"] = time.time()
     params["set_gain"] = set_param("correct.gain", 0.8)
     params["set_dt"] = set_param("physics.dt", 0.01)
     params["set_bad_gain"] = set_param("correct.gain", -1.0)
@@ -228,7 +230,14 @@ def main_run(recording, ros):
     spin_for(node, 1.5)
     stats = stop_node(proc, stats_path)
     node.destroy_node()
-    return {"recorder": recorder, "player": player, "stats": stats, "sent": dict(sent), "start": start, "params": params, "log": (recording / "main.log").read_text()}
+    return {"recorder": recorder, "player": player, "stats": stats, "sent": dict(sent), "start": start, "params": params, "log": (recording / "main.log").read_text(), "recording": recording}
+
+
+def configured_gain(recording: Path) -> float:
+    """correct.gain in the recording's configuration (the node's gain before any change)."""
+    text = (recording / "config.yaml").read_text()
+    section = text[text.index("correct:"):]
+    return float(re.search(r"\n\s+gain:\s*([-0-9.eE+]+)", section).group(1))
 
 
 def ground_truth(recording: Path):
@@ -315,7 +324,16 @@ def test_every_bad_input_is_refused_counted_and_reported(main_run):
     rejections = stats["rejections"]
     assert rejections.get("bad_image", 0) >= 2, rejections
     assert rejections.get("non_finite", 0) >= 1, rejections
+    # The backwards image (5 s behind) is a jump back; the burst (0.2 s behind the newest image)
+    # is out of order, each image refused without displacing the newest good one.
+    assert rejections.get("jumped_back", 0) >= 1, rejections
     assert rejections.get("out_of_order", 0) >= 1, rejections
+    burst = sent["burst"] - 0.2
+    refused = [float(m) for m in re.findall(r"camera cam0 image at (\d+\.\d+) s: stamp \S+ s is not after the newest", log)]
+    assert any(abs(t - burst) < 0.01 for t in refused), f"no burst image ({burst:.3}) refused as out of order: {refused}"
+    backwards = sent["backwards"] - 5.0
+    jumped = [float(m) for m in re.findall(r"camera cam0 image at (\d+\.\d+) s: stamp \S+ s is \S+ s behind the newest", log)]
+    assert any(abs(t - backwards) < 0.01 for t in jumped), f"the backwards image ({backwards:.3}) was not refused as a jump back: {jumped}"
     assert rejections.get("future_stamp", 0) >= 1, rejections
     assert stats["malformed_messages"] >= 1, stats
     for needle in ["mono8", "CameraInfo says", "non-finite", "mystery_joint", "in the future", "malformed"]:
@@ -340,12 +358,16 @@ def test_a_camera_that_stops_is_reported_and_tracking_continues(main_run):
 def test_parameters_are_listed_read_and_set(main_run):
     p = main_run["params"]
     assert {"correct.gain", "physics.dt", "node.cameras", "scene.scenario"} <= set(p["names"])
-    assert abs(p["gain_before"] - 1.5) < 1e-6 or p["gain_before"] > 0
+    assert abs(p["gain_before"] - configured_gain(main_run["recording"])) < 1e-6
     assert p["set_gain"].successful, p["set_gain"].reason
     assert abs(p["gain_after"] - 0.8) < 1e-9
     assert not p["set_dt"].successful and "fixed" in p["set_dt"].reason
     assert not p["set_bad_gain"].successful
     assert abs(p["dt_after"] - 1 / 30) < 1e-6
+    # The tick thread applies the new gain: diagnostics after the change report it.
+    after = [m for t, m in main_run["recorder"].got["diagnostics"] if t > p["set_at"] + 0.2]
+    gains = [float(kv.value) for m in after for st in m.status if st.name == "pegs: tracking" for kv in st.values if kv.key == "gain"]
+    assert gains and abs(gains[-1] - 0.8) < 1e-6, f"the tracker still corrects with {gains}"
 
 
 def test_node_runs_without_camera_info_for_one_camera(recording, ros):
