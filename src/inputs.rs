@@ -685,7 +685,10 @@ mod tests {
         inputs.offer_image(0, &image(10.0), 10.0).unwrap();
         for k in 0..RESTART_AFTER - 1 {
             let jumped = inputs.offer_image(0, &image(2.0 + k as f64 * 0.1), 10.5);
-            assert!(matches!(jumped, Err(Rejection::JumpedBack { .. })), "{jumped:?}");
+            assert!(
+                matches!(jumped, Err(Rejection::JumpedBack { .. })),
+                "{jumped:?}"
+            );
         }
         inputs
             .offer_image(0, &image(2.5), 10.5)

@@ -13,8 +13,12 @@ fn root() -> PathBuf {
 /// Module -> layer, from the rows between the README's layers markers.
 fn layers() -> BTreeMap<String, usize> {
     let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
-    let start = readme.find("<!-- layers:start -->").expect("README has no layers table");
-    let end = readme.find("<!-- layers:end -->").expect("README has no layers table end");
+    let start = readme
+        .find("<!-- layers:start -->")
+        .expect("README has no layers table");
+    let end = readme
+        .find("<!-- layers:end -->")
+        .expect("README has no layers table end");
     let mut out = BTreeMap::new();
     for row in readme[start..end].lines().filter(|l| l.starts_with("| ")) {
         let cells: Vec<&str> = row.split('|').map(str::trim).collect();
@@ -23,7 +27,10 @@ fn layers() -> BTreeMap<String, usize> {
         };
         for module in cells[2].split(',') {
             let name = module.trim().trim_matches('`').to_string();
-            assert!(out.insert(name.clone(), layer).is_none(), "{name} placed twice");
+            assert!(
+                out.insert(name.clone(), layer).is_none(),
+                "{name} placed twice"
+            );
         }
     }
     out
@@ -59,7 +66,12 @@ fn imports(text: &str) -> Vec<String> {
         let rest = &code[at + "crate::".len()..];
         if let Some(group) = rest.strip_prefix('{') {
             let inner = &group[..group.find('}').unwrap_or(group.len())];
-            out.extend(inner.split(',').map(|p| ident(p.trim())).filter(|m| !m.is_empty()));
+            out.extend(
+                inner
+                    .split(',')
+                    .map(|p| ident(p.trim()))
+                    .filter(|m| !m.is_empty()),
+            );
         } else {
             out.push(ident(rest));
         }
@@ -77,13 +89,21 @@ fn every_module_imports_only_lower_layers() {
     let mut wrong = Vec::new();
     for file in files {
         let relative = file.strip_prefix(&src).unwrap();
-        let first = relative.components().next().unwrap().as_os_str().to_string_lossy();
+        let first = relative
+            .components()
+            .next()
+            .unwrap()
+            .as_os_str()
+            .to_string_lossy();
         let module = first.trim_end_matches(".rs").to_string();
         if module == "lib" || module == "main" {
             continue;
         }
         let Some(&layer) = layers.get(&module) else {
-            wrong.push(format!("{module} ({}) is not in the README's layers table", relative.display()));
+            wrong.push(format!(
+                "{module} ({}) is not in the README's layers table",
+                relative.display()
+            ));
             continue;
         };
         modules_seen.insert(module.clone());
@@ -98,12 +118,17 @@ fn every_module_imports_only_lower_layers() {
                     "{} (layer {layer}) imports {used} (layer {l})",
                     relative.display()
                 )),
-                None => wrong.push(format!("{} imports {used}, which has no layer", relative.display())),
+                None => wrong.push(format!(
+                    "{} imports {used}, which has no layer",
+                    relative.display()
+                )),
             }
         }
     }
     for module in layers.keys().filter(|m| !modules_seen.contains(*m)) {
-        wrong.push(format!("the layers table names {module}, which src/ does not have"));
+        wrong.push(format!(
+            "the layers table names {module}, which src/ does not have"
+        ));
     }
     assert!(wrong.is_empty(), "layering broken:\n{}", wrong.join("\n"));
 }
