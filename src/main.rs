@@ -124,6 +124,15 @@ enum BackendArg {
     Wgpu,
 }
 
+/// Write `table` between the `start` and `end` markers of the Markdown file `readme`, if given.
+fn write_readme(readme: Option<PathBuf>, start: &str, end: &str, table: &str) -> Result<()> {
+    if let Some(path) = readme {
+        pegs::evaluate::write_between(&path, start, end, table)?;
+        println!("updated {}", path.display());
+    }
+    Ok(())
+}
+
 fn load_config(path: &Option<PathBuf>) -> Result<Config> {
     match path {
         Some(p) => Config::load(p),
@@ -449,16 +458,12 @@ fn replay(a: ReplayArgs) -> Result<()> {
     };
     print_replay(&m);
     println!("wrote {0}/objects.csv and {0}/metrics.json", out.display());
-    if let Some(path) = readme {
-        use pegs::replay::silhouette;
-        pegs::evaluate::write_between(
-            &path,
-            silhouette::TABLE_START,
-            silhouette::TABLE_END,
-            &silhouette::iou_table(&m),
-        )?;
-        println!("updated {}", path.display());
-    }
+    write_readme(
+        readme,
+        pegs::replay::silhouette::TABLE_START,
+        pegs::replay::silhouette::TABLE_END,
+        &pegs::replay::silhouette::iou_table(&m),
+    )?;
     Ok(())
 }
 
@@ -617,15 +622,12 @@ fn scenario_table(a: TableScenarioArgs) -> Result<()> {
     } = a;
     let table = pegs::evaluate::scenario_table::run(&out, width, height)?;
     println!("{table}");
-    if let Some(path) = readme {
-        pegs::evaluate::write_between(
-            &path,
-            pegs::evaluate::scenario_table::START,
-            pegs::evaluate::scenario_table::END,
-            &table,
-        )?;
-        println!("updated {}", path.display());
-    }
+    write_readme(
+        readme,
+        pegs::evaluate::scenario_table::START,
+        pegs::evaluate::scenario_table::END,
+        &table,
+    )?;
     Ok(())
 }
 
@@ -648,15 +650,12 @@ fn scenario_concealed(a: ConcealedScenarioArgs) -> Result<()> {
     let (verdicts, table) =
         pegs::evaluate::concealed_table::run(&out, &names, width, height, true)?;
     println!("{table}");
-    if let Some(path) = readme {
-        pegs::evaluate::write_between(
-            &path,
-            pegs::evaluate::concealed_table::START,
-            pegs::evaluate::concealed_table::END,
-            &table,
-        )?;
-        println!("updated {}", path.display());
-    }
+    write_readme(
+        readme,
+        pegs::evaluate::concealed_table::START,
+        pegs::evaluate::concealed_table::END,
+        &table,
+    )?;
     let failed: Vec<&str> = verdicts
         .iter()
         .filter(|v| !v.passed())
@@ -695,15 +694,12 @@ fn ablate(a: AblateArgs) -> Result<()> {
     let table = pegs::evaluate::ablation::summary_table(&rows);
     println!("{table}");
     println!("plots and runs in {}", out.display());
-    if let Some(path) = readme {
-        pegs::evaluate::write_between(
-            &path,
-            pegs::evaluate::ablation::START,
-            pegs::evaluate::ablation::END,
-            &table,
-        )?;
-        println!("updated {}", path.display());
-    }
+    write_readme(
+        readme,
+        pegs::evaluate::ablation::START,
+        pegs::evaluate::ablation::END,
+        &table,
+    )?;
     Ok(())
 }
 

@@ -76,3 +76,32 @@ impl NodeConfig {
         template.replace("{camera}", camera)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn camera_templates_expand_and_templates_without_a_camera_are_refused() {
+        let c = NodeConfig::default();
+        assert_eq!(
+            NodeConfig::for_camera(&c.image_topic, "cam1"),
+            "/cam1/color/image_raw"
+        );
+        assert_eq!(
+            NodeConfig::for_camera(&c.optical_frame, "cam1"),
+            "cam1_color_optical_frame"
+        );
+        c.validate().unwrap();
+        let fixed = NodeConfig {
+            image_topic: "/color/image_raw".into(),
+            ..c.clone()
+        };
+        assert!(format!("{:#}", fixed.validate().unwrap_err()).contains("image_topic"));
+        let none = NodeConfig {
+            cameras: vec![],
+            ..c
+        };
+        assert!(none.validate().is_err());
+    }
+}

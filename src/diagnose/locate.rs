@@ -309,29 +309,13 @@ mod tests {
             Pose::from_translation(Vec3::new(0.0, 0.0, 0.0151)),
             Vec3::ONE,
         );
-        let mut world = b.build();
+        let world = b.build();
         // A slippery table: it is still sliding, slowing, a second after the kick.
         let mut physics = PhysicsConfig::default();
         physics.ground.static_friction = 0.04;
         physics.ground.kinetic_friction = 0.03;
-        let mut trace = Trace {
-            base: world.clone(),
-            physics: physics.clone(),
-            robot: None,
-            states: vec![crate::trace::State::of(&world)],
-            samples: Vec::new(),
-        };
-        let mut solver = crate::physics::Solver::new(physics.clone(), &world).unwrap();
-        for k in 0..70 {
-            if k == 40 {
-                world
-                    .shapes
-                    .range(shape)
-                    .for_each(|i| world.particles.velocity[i] = Vec3::new(0.3, 0.0, 0.0));
-            }
-            solver.step(&mut world).unwrap();
-            trace.states.push(crate::trace::State::of(&world));
-        }
+        let kick = |k| (k == 40).then_some(Vec3::new(0.3, 0.0, 0.0));
+        let trace = Trace::simulated(world, physics.clone(), physics.clone(), 70, shape, kick);
         let horizon = (HORIZON / trace.dt()).round() as usize;
         let flag = |starts: Vec<usize>| {
             let p = trace.predict(&physics, shape, &starts, horizon).unwrap();

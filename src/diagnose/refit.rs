@@ -758,30 +758,13 @@ mod tests {
             Pose::from_translation(Vec3::new(0.0, 0.0, z)),
             Vec3::ONE,
         );
-        let mut world = b.build();
+        let world = b.build();
         let mut base = PhysicsConfig::default();
         base.ground.static_friction = friction + 0.01;
         base.ground.kinetic_friction = friction;
         let mut truth = base.clone();
         truth.effects = vec![hidden];
-        let mut trace = Trace {
-            base: world.clone(),
-            physics: base,
-            robot: None,
-            states: vec![crate::trace::State::of(&world)],
-            samples: Vec::new(),
-        };
-        let mut solver = crate::physics::Solver::new(truth, &world).unwrap();
-        for k in 0..ticks {
-            if let Some(v) = kick(k) {
-                world
-                    .shapes
-                    .range(shape)
-                    .for_each(|i| world.particles.velocity[i] = v);
-            }
-            solver.step(&mut world).unwrap();
-            trace.states.push(crate::trace::State::of(&world));
-        }
+        let trace = Trace::simulated(world, base, truth, ticks, shape, kick);
         (trace, shape)
     }
 

@@ -120,6 +120,14 @@ impl Report {
     }
 }
 
+/// A mismatch window's time and region as the first cells of a table row (`| from | to | x | y |`).
+fn window_cells(m: &Mismatch) -> String {
+    format!(
+        "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} |",
+        m.t_start, m.t_end, m.region_min[0], m.region_max[0], m.region_min[1], m.region_max[1]
+    )
+}
+
 /// Where short open-loop predictions miss, and what explains it.
 fn locate_section(md: &mut String, o: &ObjectReport) {
     if o.mismatch.is_empty() && o.effect != "none" {
@@ -155,13 +163,8 @@ fn locate_section(md: &mut String, o: &ObjectReport) {
         for m in &o.mismatch {
             let _ = writeln!(
                 md,
-                "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {} | {:.1} |",
-                m.t_start,
-                m.t_end,
-                m.region_min[0],
-                m.region_max[0],
-                m.region_min[1],
-                m.region_max[1],
+                "{} {} | {:.1} |",
+                window_cells(m),
                 m.phase,
                 m.peak_error_mm
             );
@@ -183,17 +186,7 @@ fn driven_section(md: &mut String, o: &ObjectReport) {
             "| from (s) | to (s) | region x (m) | region y (m) | peak error (mm) |\n|---|---|---|---|---|"
         );
         for m in driven {
-            let _ = writeln!(
-                md,
-                "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} | {:.1} |",
-                m.t_start,
-                m.t_end,
-                m.region_min[0],
-                m.region_max[0],
-                m.region_min[1],
-                m.region_max[1],
-                m.peak_error_mm
-            );
+            let _ = writeln!(md, "{} {:.1} |", window_cells(m), m.peak_error_mm);
         }
         md.push('\n');
     }

@@ -123,26 +123,24 @@ fn camera_statuses(s: &Shared, tick: &TickInputs) -> Vec<DiagnosticStatus> {
             values,
         ));
     }
-    for (name, why) in &s.unused_cameras {
-        let message = format!("not used: {why} when tracking started");
-        out.push(status(
+    let error = |name: &String, message: String| {
+        status(
             DiagnosticStatus::ERROR,
             format!("pegs: camera {name}"),
             message,
             name,
             vec![],
+        )
+    };
+    for (name, why) in &s.unused_cameras {
+        out.push(error(
+            name,
+            format!("not used: {why} when tracking started"),
         ));
     }
     for (name, why) in &s.bad_camera_info {
         if !inputs.cameras.iter().any(|f| &f.name == name) || why.contains("changed") {
-            let message = format!("CameraInfo problem: {why}");
-            out.push(status(
-                DiagnosticStatus::ERROR,
-                format!("pegs: camera {name}"),
-                message,
-                name,
-                vec![],
-            ));
+            out.push(error(name, format!("CameraInfo problem: {why}")));
         }
     }
     out

@@ -271,28 +271,25 @@ pub fn subscribe(
             info_qos,
             move |s, info| s.on_camera_info(&c, info),
         )?;
-        let c = cam.clone();
-        s.subscribe(
-            &topic(&nc.depth_topic),
-            IMAGE,
-            sensor_qos(),
-            move |s: &mut Shared, img| {
-                if s.inputs.is_none() {
-                    s.first_depth.insert(c.clone(), img);
-                }
-            },
-        )?;
-        let c = cam.clone();
-        s.subscribe(
-            &topic(&nc.mask_topic),
-            IMAGE,
-            sensor_qos(),
-            move |s: &mut Shared, img| {
-                if s.inputs.is_none() {
-                    s.first_masks.insert(c.clone(), img);
-                }
-            },
-        )?;
+        // Depth and masks: only the first frames, for initialisation.
+        for (template, depth) in [(&nc.depth_topic, true), (&nc.mask_topic, false)] {
+            let c = cam.clone();
+            s.subscribe(
+                &topic(template),
+                IMAGE,
+                sensor_qos(),
+                move |s: &mut Shared, img| {
+                    if s.inputs.is_none() {
+                        let first = if depth {
+                            &mut s.first_depth
+                        } else {
+                            &mut s.first_masks
+                        };
+                        first.insert(c.clone(), img);
+                    }
+                },
+            )?;
+        }
     }
     let joint_states = ("sensor_msgs", "JointState");
     s.subscribe(

@@ -204,6 +204,40 @@ impl Trace {
     }
 }
 
+/// Traces made by the physics itself, for tests of what reads traces.
+#[cfg(test)]
+impl Trace {
+    /// `world` stepped `ticks` times by `truth`, shape `kicked` set to velocity `kick(k)` before
+    /// tick k where that is Some, traced as a run of `physics` (the model, which may lack what
+    /// `truth` has).
+    pub(crate) fn simulated(
+        mut world: World,
+        physics: PhysicsConfig,
+        truth: PhysicsConfig,
+        ticks: usize,
+        kicked: ShapeId,
+        kick: impl Fn(usize) -> Option<Vec3>,
+    ) -> Trace {
+        let mut trace = Trace {
+            base: world.clone(),
+            physics,
+            robot: None,
+            states: vec![State::of(&world)],
+            samples: Vec::new(),
+        };
+        let mut solver = Solver::new(truth, &world).unwrap();
+        for k in 0..ticks {
+            if let Some(v) = kick(k) {
+                let range = world.shapes.range(kicked);
+                world.particles.velocity[range].fill(v);
+            }
+            solver.step(&mut world).unwrap();
+            trace.states.push(State::of(&world));
+        }
+        trace
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -222,25 +256,12 @@ mod tests {
             Pose::from_translation(Vec3::new(0.0, 0.0, 0.015)),
             Vec3::ONE,
         );
-        let mut world = b.build();
-        for i in world.shapes.range(s) {
-            world.particles.velocity[i] = Vec3::new(0.4, 0.0, 0.0);
-        }
+        let world = b.build();
         let mut physics = PhysicsConfig::default();
         physics.ground.static_friction = 0.04;
         physics.ground.kinetic_friction = 0.03;
-        let mut trace = Trace {
-            base: world.clone(),
-            physics: physics.clone(),
-            robot: None,
-            states: vec![State::of(&world)],
-            samples: Vec::new(),
-        };
-        let mut solver = Solver::new(physics.clone(), &world).unwrap();
-        for _ in 0..45 {
-            solver.step(&mut world).unwrap();
-            trace.states.push(State::of(&world));
-        }
+        let kick = |k| (k == 0).then_some(Vec3::new(0.4, 0.0, 0.0));
+        let trace = Trace::simulated(world, physics.clone(), physics.clone(), 45, s, kick);
         // From states inside the trace (velocities centrally differenced) the replay is exact up
         // to the difference's error.
         let same = trace.predict(&physics, s, &[3, 8], 30).unwrap();

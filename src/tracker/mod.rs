@@ -176,3 +176,128 @@ impl Tracker {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::inputs::TickInputs;
+    use crate::math::Pose;
+    use crate::render::Camera;
+    use crate::robot::JointTrajectory;
+    use glam::{DVec3, Vec3};
+
+    fn physics_only(scene: Scene) -> Tracker {
+        Tracker::with(scene, PhysicsConfig::default(), None).unwrap()
+    }
+
+    fn at(time: f64) -> TickInputs {
+        TickInputs {
+            time,
+            ..Default::default()
+        }
+    }
+
+    /// A tick whose end lies three ticks ahead predicts across the two it missed: the same world
+    /// as three ticks of the physics alone.
+    #[test]
+    fn a_tick_that_ends_late_predicts_across_the_ticks_it_missed() {
+        let mut late = physics_only(crate::scene::tabletop().unwrap());
+        let mut stepped = physics_only(crate::scene::tabletop().unwrap());
+        let dt = late.physics().dt as f64;
+        let report = late.tick(&at(late.time() + 3.0 * dt)).unwrap();
+        for _ in 0..3 {
+            stepped.predict().unwrap();
+        }
+        assert_eq!(report.caught_up, 2);
+        assert_eq!(report.jumped_s, 0.0);
+        assert!((report.time - stepped.time()).abs() < 1e-9);
+        assert_eq!(
+            late.world().particles.position,
+            stepped.world().particles.position
+        );
+        assert!(report.correction.is_none(), "physics only");
+    }
+
+    /// Beyond `MAX_CATCH_UP_TICKS` the clock jumps: the world is predicted for the last ticks
+    /// only, and the jump is reported.
+    #[test]
+    fn a_gap_beyond_the_catch_up_limit_jumps_the_clock_and_says_so() {
+        let mut tracker = physics_only(crate::scene::tabletop().unwrap());
+        let dt = tracker.physics().dt as f64;
+        let t = tracker.time() + 100.0 * dt;
+        let report = tracker.tick(&at(t)).unwrap();
+        assert_eq!(report.caught_up, MAX_CATCH_UP_TICKS);
+        assert!((report.jumped_s - (100 - 1 - MAX_CATCH_UP_TICKS) as f64 * dt).abs() < 1e-9);
+        assert!(
+            (tracker.time() - t).abs() < 1e-6,
+            "{} vs {t}",
+            tracker.time()
+        );
+    }
+
+    /// The robot is driven by the trajectory the tick brings: its pusher link ends the tick where
+    /// forward kinematics of the trajectory at the tick's end puts it.
+    #[test]
+    fn the_robot_follows_the_joint_trajectory_its_ticks_bring() {
+        let scene = crate::scenario::build("resting_box", Pose::IDENTITY).unwrap();
+        let mut tracker = physics_only(scene);
+        let (robot, _) = tracker.robot().unwrap();
+        let model = robot.model.clone();
+        let q0 = vec![0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785];
+        let mut q1 = q0.clone();
+        q1[0] = 0.4;
+        let dt = tracker.physics().dt as f64;
+        let t = tracker.time() + dt;
+        let mut trajectory = JointTrajectory::default();
+        trajectory.push(tracker.time(), q0);
+        trajectory.push(t, q1.clone());
+        let inputs = TickInputs {
+            time: t,
+            trajectory: Some(trajectory),
+            ..Default::default()
+        };
+        tracker.tick(&inputs).unwrap();
+        let (robot, followed) = tracker.robot().unwrap();
+        assert_eq!(
+            followed.at(t).unwrap(),
+            q1,
+            "the tick's trajectory is followed"
+        );
+        let link = model.link_index("panda_pusher").unwrap();
+        let tip = (robot.base * model.forward_kinematics(&q1)[link])
+            .transform_point3(DVec3::ZERO)
+            .as_vec3();
+        let shape = tracker.world().shape_id("robot/panda_pusher").unwrap();
+        let pose = tracker.world().shapes.pose[shape as usize];
+        assert!(
+            pose.translation.distance(tip) < 1e-4,
+            "{} vs {tip}",
+            pose.translation
+        );
+    }
+
+    /// Correction runs while it is enabled, stops when a live change disables it and resumes when
+    /// it is enabled again; each corrected tick compares with every image it was given.
+    #[test]
+    fn corrections_follow_the_live_setting() {
+        let mut config = crate::config::Config::default();
+        config.correct.iterations = 1;
+        let scene = crate::scene::tabletop().unwrap();
+        let mut tracker = Tracker::new(scene, &config, true).unwrap();
+        let camera = Camera::look_at(32, 18, 30.0, Vec3::new(1.0, 0.0, 0.6), Vec3::ZERO);
+        let dt = tracker.physics().dt as f64;
+        let tick = |tracker: &mut Tracker| {
+            let image = vec![vec![Vec3::splat(0.5); 32 * 18]];
+            let inputs = TickInputs::with_images(tracker.time() + dt, &[camera], image);
+            tracker.tick(&inputs).unwrap()
+        };
+        let on = tick(&mut tracker);
+        assert!(on.correction.is_some() && on.cameras_used == 1);
+        let mut off = config.correct.clone();
+        off.enabled = false;
+        tracker.set_correct(off);
+        assert!(tick(&mut tracker).correction.is_none() && !tracker.corrects());
+        tracker.set_correct(config.correct.clone());
+        assert!(tick(&mut tracker).correction.is_some());
+    }
+}
