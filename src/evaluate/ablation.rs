@@ -169,104 +169,7 @@ pub fn run(opts: &SweepOptions, out: &Path) -> Result<Vec<Row>> {
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut rows = Vec::new();
     for name in &opts.scenarios {
-        let dir = out.join(name);
-        // One recording per resolution in use.
-        let base_config = Config::default();
-        let all = variants(opts, &base_config);
-        let mut recordings: BTreeMap<(u32, u32), (PathBuf, Config)> = BTreeMap::new();
-        for v in &all {
-            if recordings.contains_key(&v.resolution) {
-                continue;
-            }
-            let (w, h) = v.resolution;
-            let rec_dir = dir.join(format!("recording_{w}x{h}"));
-            eprintln!("{name}: generating {w}x{h}");
-            generate::generate(
-                name,
-                &rec_dir,
-                &GenerateOptions {
-                    width: w,
-                    height: h,
-                    seconds: opts.seconds,
-                    ..Default::default()
-                },
-            )?;
-            let scene = Config::load(&rec_dir.join("config.yaml"))?.scene;
-            recordings.insert(
-                v.resolution,
-                (
-                    rec_dir.join("recording.mcap"),
-                    Config {
-                        scene,
-                        ..base_config.clone()
-                    },
-                ),
-            );
-        }
-        let mut groups: BTreeMap<&str, Vec<(String, Series)>> = BTreeMap::new();
-        // Replay is deterministic: a setting that equals one already run (the defaults appear in
-        // every group) reuses its result.
-        let mut done: BTreeMap<String, (Series, f64)> = BTreeMap::new();
-        for v in &all {
-            let (recording, scene_config) = &recordings[&v.resolution];
-            let config = Config {
-                scene: scene_config.scene.clone(),
-                ..v.config.clone()
-            };
-            let cameras = v
-                .cameras
-                .filter(|&n| n < crate::scenario::cameras(name, 1, 1).len());
-            let key = format!("{:?} {:?} {}", v.resolution, cameras, config.to_yaml()?);
-            let (series, wall_ms_per_tick) = match done.get(&key) {
-                Some(r) => r.clone(),
-                None => {
-                    let run_dir = dir.join(v.group).join(v.label.replace(' ', "_"));
-                    eprintln!("{name}: {} / {}", v.group, v.label);
-                    let m = replay::run(
-                        recording,
-                        &config,
-                        &run_dir,
-                        ReplayOptions {
-                            progress: true,
-                            max_cameras: cameras,
-                            ..Default::default()
-                        },
-                    )?;
-                    let r = (mean_series(&m), m.wall_ms_per_tick);
-                    done.insert(key, r.clone());
-                    r
-                }
-            };
-            // Back to metres for the same statistics as replay's metrics.
-            let errors: Vec<f32> = series.iter().map(|e| e.1 * 1e-3).collect();
-            if errors.is_empty() {
-                bail!(
-                    "{}: no ground truth to measure against",
-                    recording.display()
-                );
-            }
-            let stats = replay::stats(&errors);
-            rows.push(Row {
-                scenario: name.clone(),
-                group: v.group.into(),
-                variant: v.label.clone(),
-                mean_mm: stats.mean_mm,
-                p95_mm: stats.p95_mm,
-                final_mm: stats.final_mm,
-                wall_ms_per_tick,
-            });
-            groups
-                .entry(v.group)
-                .or_default()
-                .push((v.label.clone(), series));
-        }
-        for (group, lines) in &groups {
-            plot::error_over_time(
-                &dir.join(format!("{group}.png")),
-                &format!("{name}: {}", group.replace('_', " ")),
-                lines,
-            )?;
-        }
+        rows.extend(sweep_scenario(opts, name, &out.join(name))?);
     }
     std::fs::write(
         out.join("summary.json"),
@@ -274,6 +177,103 @@ pub fn run(opts: &SweepOptions, out: &Path) -> Result<Vec<Row>> {
     )?;
     std::fs::write(out.join("summary.md"), summary_table(&rows))?;
     Ok(rows)
+}
+
+/// Every variant of the sweep on scenario `name` (recordings, runs and plots in `dir`).
+fn sweep_scenario(opts: &SweepOptions, name: &str, dir: &Path) -> Result<Vec<Row>> {
+    let all = variants(opts, &Config::default());
+    let recordings = recordings(opts, name, dir, &all)?;
+    let mut rows = Vec::new();
+    let mut groups: BTreeMap<&str, Vec<(String, Series)>> = BTreeMap::new();
+    // Replay is deterministic: a setting that equals one already run (the defaults appear in
+    // every group) reuses its result.
+    let mut done: BTreeMap<String, (Series, f64)> = BTreeMap::new();
+    for v in &all {
+        let (recording, scene_config) = &recordings[&v.resolution];
+        let config = Config {
+            scene: scene_config.scene.clone(),
+            ..v.config.clone()
+        };
+        let cameras = v
+            .cameras
+            .filter(|&n| n < crate::scenario::cameras(name, 1, 1).len());
+        let key = format!("{:?} {:?} {}", v.resolution, cameras, config.to_yaml()?);
+        let (series, wall_ms_per_tick) = match done.get(&key) {
+            Some(r) => r.clone(),
+            None => {
+                let run_dir = dir.join(v.group).join(v.label.replace(' ', "_"));
+                eprintln!("{name}: {} / {}", v.group, v.label);
+                let options = ReplayOptions {
+                    progress: true,
+                    max_cameras: cameras,
+                    ..Default::default()
+                };
+                let m = replay::run(recording, &config, &run_dir, options)?;
+                let r = (mean_series(&m), m.wall_ms_per_tick);
+                done.insert(key, r.clone());
+                r
+            }
+        };
+        // Back to metres for the same statistics as replay's metrics.
+        let errors: Vec<f32> = series.iter().map(|e| e.1 * 1e-3).collect();
+        if errors.is_empty() {
+            bail!(
+                "{}: no ground truth to measure against",
+                recording.display()
+            );
+        }
+        let stats = replay::stats(&errors);
+        rows.push(Row {
+            scenario: name.to_string(),
+            group: v.group.into(),
+            variant: v.label.clone(),
+            mean_mm: stats.mean_mm,
+            p95_mm: stats.p95_mm,
+            final_mm: stats.final_mm,
+            wall_ms_per_tick,
+        });
+        groups
+            .entry(v.group)
+            .or_default()
+            .push((v.label.clone(), series));
+    }
+    for (group, lines) in &groups {
+        let title = format!("{name}: {}", group.replace('_', " "));
+        plot::error_over_time(&dir.join(format!("{group}.png")), &title, lines)?;
+    }
+    Ok(rows)
+}
+
+/// One recording of scenario `name` per resolution the variants use, with its replay config.
+fn recordings(
+    opts: &SweepOptions,
+    name: &str,
+    dir: &Path,
+    all: &[Variant],
+) -> Result<BTreeMap<(u32, u32), (PathBuf, Config)>> {
+    let mut recordings = BTreeMap::new();
+    for v in all {
+        if recordings.contains_key(&v.resolution) {
+            continue;
+        }
+        let (w, h) = v.resolution;
+        let rec_dir = dir.join(format!("recording_{w}x{h}"));
+        eprintln!("{name}: generating {w}x{h}");
+        let options = GenerateOptions {
+            width: w,
+            height: h,
+            seconds: opts.seconds,
+            ..Default::default()
+        };
+        generate::generate(name, &rec_dir, &options)?;
+        let scene = Config::load(&rec_dir.join("config.yaml"))?.scene;
+        let config = Config {
+            scene,
+            ..Config::default()
+        };
+        recordings.insert(v.resolution, (rec_dir.join("recording.mcap"), config));
+    }
+    Ok(recordings)
 }
 
 /// Markdown: one row per group and setting, one error column per scenario.

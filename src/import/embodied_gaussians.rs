@@ -268,64 +268,8 @@ pub fn import(
         indicatif::ProgressBar::hidden()
     };
     for c in &cameras {
-        let name = camera_name(&c.serial);
-        let frame_id = record::optical_frame(&name);
-        let mut video = VideoFrames::open(&c.video, c.camera.width, c.camera.height)?;
-        let mut last_kept = f64::NEG_INFINITY;
-        let mut kept = 0usize;
-        let mut wrote_info = false;
-        let mut decoded = 0usize;
-        for (k, &t) in c.timestamps.iter().enumerate() {
-            if t > to {
-                break;
-            }
-            let Some(frame) = video
-                .next_frame()
-                .with_context(|| format!("decoding {}", c.video.display()))?
-            else {
-                report.warnings.push(format!(
-                    "{}: video has {k} frames, its JSON {} timestamps",
-                    c.serial,
-                    c.timestamps.len()
-                ));
-                break;
-            };
-            decoded += 1;
-            if t < from
-                || !t.is_finite()
-                || (opts.max_rate > 0.0 && t - last_kept < 1.0 / opts.max_rate - 1e-3)
-            {
-                continue;
-            }
-            if !wrote_info {
-                rec.write(
-                    &record::info_topic(&name),
-                    msgs::schema::camera_info(),
-                    Time::from_seconds(t),
-                    &record::camera_info(&c.camera, t, &frame_id),
-                )?;
-                wrote_info = true;
-            }
-            rec.write(
-                &record::image_topic(&name),
-                msgs::schema::image(),
-                Time::from_seconds(t),
-                &record::rgb8(c.camera.width, c.camera.height, frame, t, &frame_id),
-            )?;
-            last_kept = t;
-            kept += 1;
-            report.first_stamp = report.first_stamp.min(t);
-            report.last_stamp = report.last_stamp.max(t);
-            progress.inc(1);
-        }
-        if decoded == c.timestamps.len() && video.next_frame()?.is_some() {
-            report.warnings.push(format!(
-                "{}: the video has more frames than its {} timestamps; the extra ones are dropped",
-                c.serial,
-                c.timestamps.len()
-            ));
-        }
-        report.frames_per_camera.insert(name, kept);
+        let span = (from, to, opts.max_rate);
+        import_camera(c, &mut rec, span, &mut report, &progress)?;
     }
     progress.finish_and_clear();
     rec.finish()?;
@@ -333,6 +277,73 @@ pub fn import(
     std::fs::write(config_out, config.to_yaml()?)
         .with_context(|| format!("cannot write {}", config_out.display()))?;
     Ok(report)
+}
+
+/// One camera's frames stamped within `(from, to)`, at most `max_rate` per second, into `rec`
+/// (its CameraInfo once, before its first image).
+fn import_camera(
+    c: &SourceCamera,
+    rec: &mut RecordingWriter,
+    (from, to, max_rate): (f64, f64, f64),
+    report: &mut ImportReport,
+    progress: &indicatif::ProgressBar,
+) -> Result<()> {
+    let name = camera_name(&c.serial);
+    let frame_id = record::optical_frame(&name);
+    let mut video = VideoFrames::open(&c.video, c.camera.width, c.camera.height)?;
+    let mut last_kept = f64::NEG_INFINITY;
+    let (mut kept, mut decoded) = (0usize, 0usize);
+    for (k, &t) in c.timestamps.iter().enumerate() {
+        if t > to {
+            break;
+        }
+        let Some(frame) = video
+            .next_frame()
+            .with_context(|| format!("decoding {}", c.video.display()))?
+        else {
+            report.warnings.push(format!(
+                "{}: video has {k} frames, its JSON {} timestamps",
+                c.serial,
+                c.timestamps.len()
+            ));
+            break;
+        };
+        decoded += 1;
+        if t < from || !t.is_finite() || (max_rate > 0.0 && t - last_kept < 1.0 / max_rate - 1e-3) {
+            continue;
+        }
+        let stamp = Time::from_seconds(t);
+        if kept == 0 {
+            let info = record::camera_info(&c.camera, t, &frame_id);
+            rec.write(
+                &record::info_topic(&name),
+                msgs::schema::camera_info(),
+                stamp,
+                &info,
+            )?;
+        }
+        let image = record::rgb8(c.camera.width, c.camera.height, frame, t, &frame_id);
+        rec.write(
+            &record::image_topic(&name),
+            msgs::schema::image(),
+            stamp,
+            &image,
+        )?;
+        last_kept = t;
+        kept += 1;
+        report.first_stamp = report.first_stamp.min(t);
+        report.last_stamp = report.last_stamp.max(t);
+        progress.inc(1);
+    }
+    if decoded == c.timestamps.len() && video.next_frame()?.is_some() {
+        report.warnings.push(format!(
+            "{}: the video has more frames than its {} timestamps; the extra ones are dropped",
+            c.serial,
+            c.timestamps.len()
+        ));
+    }
+    report.frames_per_camera.insert(name, kept);
+    Ok(())
 }
 
 /// The replay configuration for the layout in `dir`.

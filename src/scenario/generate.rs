@@ -56,11 +56,12 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
         .enumerate()
         .map(|(k, c)| (camera_name(k), *c))
         .collect();
+    let tf = record::optical_frames_tf(&named);
     rec.write(
         record::TF_STATIC,
         msgs::schema::tf_message(),
         Time::from_seconds(0.0),
-        &record::optical_frames_tf(&named),
+        &tf,
     )?;
     let dt = config.physics.dt as f64;
     let ticks = (opts.seconds / dt).round() as usize;
@@ -68,81 +69,21 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
         .robot()
         .map(|(r, t)| (r.clone(), t.clone()))
         .context("scenarios have a robot")?;
-    let joint_names: Vec<usize> = robot.model.actuated_joints().collect();
     let progress = indicatif::ProgressBar::new(ticks as u64 + 1);
     for k in 0..=ticks {
         if k > 0 {
             truth.predict()?;
         }
         let t = k as f64 * dt;
-        let exposure = 1.0 + 0.03 * (t as f32 * 1.7).sin();
-        let images = observe(truth.world(), &cams, opts.noise, exposure, k as u64);
         if k == 0 {
             // What initialisation from RGB-D starts from: depth and instance masks of the first frame.
-            for (i, (c, (depth, labels))) in cams
-                .iter()
-                .zip(observe_depth_and_labels(
-                    truth.world(),
-                    &cams,
-                    super::object_names(name),
-                ))
-                .enumerate()
-            {
-                let frame = record::optical_frame(&camera_name(i));
-                rec.write(
-                    &record::depth_topic(&camera_name(i)),
-                    msgs::schema::image(),
-                    Time::from_seconds(t),
-                    &record::depth32(c.width, c.height, &depth, t, &frame),
-                )?;
-                rec.write(
-                    &record::mask_topic(&camera_name(i)),
-                    msgs::schema::image(),
-                    Time::from_seconds(t),
-                    &record::mono8(c.width, c.height, labels, t, &frame),
-                )?;
-            }
+            write_depth_and_masks(&mut rec, truth.world(), &cams, super::object_names(name), t)?;
         }
-        for (i, (c, img)) in cams.iter().zip(&images).enumerate() {
-            let frame = record::optical_frame(&camera_name(i));
-            let data = img
-                .iter()
-                .flat_map(|p| {
-                    (p.clamp(Vec3::ZERO, Vec3::ONE) * 255.0)
-                        .round()
-                        .to_array()
-                        .map(|v| v as u8)
-                })
-                .collect();
-            rec.write(
-                &record::info_topic(&camera_name(i)),
-                msgs::schema::camera_info(),
-                Time::from_seconds(t),
-                &record::camera_info(c, t, &frame),
-            )?;
-            rec.write(
-                &record::image_topic(&camera_name(i)),
-                msgs::schema::image(),
-                Time::from_seconds(t),
-                &record::rgb8(c.width, c.height, data, t, &frame),
-            )?;
-        }
+        let exposure = 1.0 + 0.03 * (t as f32 * 1.7).sin();
+        let images = observe(truth.world(), &cams, opts.noise, exposure, k as u64);
+        write_images(&mut rec, &cams, &images, t)?;
         let q = trajectory.at(t).context("empty joint trajectory")?;
-        let js = JointState {
-            header: record::header(t, ""),
-            name: joint_names
-                .iter()
-                .map(|&j| robot.model.joints[j].name.clone())
-                .collect(),
-            position: joint_names.iter().map(|&j| q[j]).collect(),
-            ..Default::default()
-        };
-        rec.write(
-            record::JOINT_STATES,
-            msgs::schema::joint_state(),
-            Time::from_seconds(t),
-            &js,
-        )?;
+        write_joint_state(&mut rec, &robot.model, &q, t)?;
         gt.record(truth.world())?;
         gt_particles.record(truth.world())?;
         progress.inc(1);
@@ -162,4 +103,94 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
     };
     std::fs::write(out.join("config.yaml"), replay_config.to_yaml()?)?;
     Ok(())
+}
+
+/// Depth (32FC1) and instance masks (mono8, label k + 1 for `objects[k]`) of every camera at `t`.
+fn write_depth_and_masks(
+    rec: &mut RecordingWriter,
+    world: &crate::world::World,
+    cams: &[Camera],
+    objects: &[&str],
+    t: f64,
+) -> Result<()> {
+    let observed = observe_depth_and_labels(world, cams, objects);
+    for (i, (c, (depth, labels))) in cams.iter().zip(observed).enumerate() {
+        let (name, stamp) = (camera_name(i), Time::from_seconds(t));
+        let frame = record::optical_frame(&name);
+        let depth = record::depth32(c.width, c.height, &depth, t, &frame);
+        rec.write(
+            &record::depth_topic(&name),
+            msgs::schema::image(),
+            stamp,
+            &depth,
+        )?;
+        let mask = record::mono8(c.width, c.height, labels, t, &frame);
+        rec.write(
+            &record::mask_topic(&name),
+            msgs::schema::image(),
+            stamp,
+            &mask,
+        )?;
+    }
+    Ok(())
+}
+
+/// Every camera's CameraInfo and rgb8 image at `t`.
+fn write_images(
+    rec: &mut RecordingWriter,
+    cams: &[Camera],
+    images: &[Vec<Vec3>],
+    t: f64,
+) -> Result<()> {
+    for (i, (c, img)) in cams.iter().zip(images).enumerate() {
+        let (name, stamp) = (camera_name(i), Time::from_seconds(t));
+        let frame = record::optical_frame(&name);
+        let data = img
+            .iter()
+            .flat_map(|p| {
+                let p = (p.clamp(Vec3::ZERO, Vec3::ONE) * 255.0).round();
+                p.to_array().map(|v| v as u8)
+            })
+            .collect();
+        let info = record::camera_info(c, t, &frame);
+        rec.write(
+            &record::info_topic(&name),
+            msgs::schema::camera_info(),
+            stamp,
+            &info,
+        )?;
+        let image = record::rgb8(c.width, c.height, data, t, &frame);
+        rec.write(
+            &record::image_topic(&name),
+            msgs::schema::image(),
+            stamp,
+            &image,
+        )?;
+    }
+    Ok(())
+}
+
+/// The robot's actuated joints at positions `q` (all joints), stamped `t`.
+fn write_joint_state(
+    rec: &mut RecordingWriter,
+    model: &crate::robot::RobotModel,
+    q: &[f64],
+    t: f64,
+) -> Result<()> {
+    let joints: Vec<usize> = model.actuated_joints().collect();
+    let js = JointState {
+        header: record::header(t, ""),
+        name: joints
+            .iter()
+            .map(|&j| model.joints[j].name.clone())
+            .collect(),
+        position: joints.iter().map(|&j| q[j]).collect(),
+        ..Default::default()
+    };
+    rec.write(
+        record::JOINT_STATES,
+        msgs::schema::joint_state(),
+        Time::from_seconds(t),
+        &js,
+    )
 }

@@ -181,7 +181,6 @@ impl Tracker {
 mod tests {
     use super::*;
     use crate::inputs::TickInputs;
-    use crate::math::Pose;
     use crate::render::Camera;
     use crate::robot::JointTrajectory;
     use glam::{DVec3, Vec3};
@@ -239,7 +238,7 @@ mod tests {
     /// forward kinematics of the trajectory at the tick's end puts it.
     #[test]
     fn the_robot_follows_the_joint_trajectory_its_ticks_bring() {
-        let scene = crate::scenario::build("resting_box", Pose::IDENTITY).unwrap();
+        let scene = crate::scene::tblock_and_robot().unwrap();
         let mut tracker = physics_only(scene);
         let (robot, _) = tracker.robot().unwrap();
         let model = robot.model.clone();
