@@ -6,9 +6,8 @@
 //!
 //! A diagnosis takes minutes on two cores: the full tier runs the control (nothing may be named),
 //! the heavy box (a mass ratio that shows only in the boxes it strikes) and, through the demo, the
-//! drag; `PEGS_CONCEALED=all`
-//! (`tests/run_all.sh --all-concealed`) runs every concealed scenario but the drag, as
-//! `pegs scenario concealed` does for the README's table.
+//! drag; `PEGS_CONCEALED=all` (`tests/run_all.sh --all-concealed`) runs every concealed scenario
+//! but the drag, as `pegs scenario concealed` does for the README's table.
 
 use std::process::Command;
 
