@@ -2,8 +2,12 @@
 //! predict where objects go; Gaussians bonded to the particles are rendered and compared with
 //! camera images, and the photometric error becomes visual forces that correct the particles.
 //!
-//! The modules follow the loop: `world` (plain data) -> `physics` (predict) -> ... Scenes are
-//! built in `scene`; `config` holds every number; `demo` and `bench` are the command-line jobs.
+//! The modules are layered (the README's Layout table, checked by `tests/architecture.rs`): plain
+//! data (`world`), the passes (`physics` predicts, `render` and `correct` correct), what feeds a
+//! tick (`scene`, `init`, `inputs`), the tick itself (`tracker::Tracker::tick`), what keeps a run
+//! (`trace`), and the jobs that drive ticks (`replay`, `ros`) or judge them (`diagnose`,
+//! `evaluate`, `demo`, `bench`). Each configuration section lives beside what it configures;
+//! `config` assembles them.
 
 pub mod bench;
 pub mod config;
