@@ -694,11 +694,12 @@ fn ablate(a: AblateArgs) -> Result<()> {
     let table = pegs::evaluate::ablation::summary_table(&rows);
     println!("{table}");
     println!("plots and runs in {}", out.display());
+    let caption = pegs::evaluate::ablation::caption(&opts);
     write_readme(
         readme,
         pegs::evaluate::ablation::START,
         pegs::evaluate::ablation::END,
-        &table,
+        &format!("{caption}\n\n{table}"),
     )?;
     Ok(())
 }
