@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Set up and run every pegs test on a fresh machine (Rust toolchain, Python 3 and git assumed).
 # Installs Mesa's lavapipe so the wgpu renderer runs on the CPU, and the ffmpeg tool that decodes
-# the real recording's videos (../shared/data/pusht_real). Physics and rendering tests run in
-# release mode: they simulate seconds of motion and render real images.
+# the real recording's videos (../shared/data/pusht_real); the full tier also makes a venv with
+# MuJoCo and rosbags (tests/mujoco) that records scenes pegs did not simulate or render. Physics
+# and rendering tests run in release mode: they simulate seconds of motion and render real images.
 #
 #   bash tests/run_all.sh                  the full tier (CI): formatting, lints, every test, the
 #                                          rclpy tests of the node
@@ -48,9 +49,12 @@ if [ "$TIER" = fast ]; then
   echo "fast tier: tests took $(( $(date +%s) - start )) s"
   exit 0
 fi
+TARGET_DIR=$(cargo metadata --format-version 1 --no-deps --locked | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+# Recordings pegs did not make (tests/mujoco.rs): MuJoCo and rosbags from PyPI in their own venv.
+bash tests/mujoco/setup_venv.sh "$TARGET_DIR/mujoco-venv"
+export PEGS_MUJOCO_PYTHON="$TARGET_DIR/mujoco-venv/bin/python"
 cargo test --release --locked -- --include-ignored
 echo "full tier: Rust tests took $(( $(date +%s) - start )) s"
 # The node from Python: rclpy (ROS 2 Jazzy from PyPI) in a loopback-only network namespace.
-TARGET_DIR=$(cargo metadata --format-version 1 --no-deps --locked | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
 bash tests/ros/run.sh "$TARGET_DIR/release/pegs"
 echo "full tier: all tests took $(( $(date +%s) - start )) s"

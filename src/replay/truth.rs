@@ -1,9 +1,10 @@
 //! Tracking error against ground truth, as an observer of a replay's ticks: `ground_truth.csv`
 //! (object poses) and `ground_truth_particles.csv` (deformable objects' particles) beside a
-//! recording. A rigid object's error is the mean distance of its particles from where the true
-//! pose puts them; a deformable one's, of particle k from true particle k. Objects built from
-//! RGB-D have a body frame of their own: their error is measured after registering it to the true
-//! body frame at the start (so it is the drift of the tracking).
+//! recording (or beside the rosbag2 directory that holds it). A rigid object's error is the mean
+//! distance of its particles from where the true pose puts them; a deformable one's, of particle k
+//! from true particle k. Objects built from RGB-D have a body frame of their own: their error is
+//! measured after registering it to the true body frame at the start (so it is the drift of the
+//! tracking).
 
 use super::ErrorStats;
 use crate::math::Pose;
@@ -29,17 +30,14 @@ impl TruthError {
     /// The ground truth beside `recording`, if there is any; `registered`: objects whose body
     /// frame is their own (built from RGB-D).
     pub fn beside(recording: &Path, registered: Vec<String>) -> Result<Option<Self>> {
-        let path = recording.with_file_name("ground_truth.csv");
-        if !path.is_file() {
+        let Some(path) = file_beside(recording, "ground_truth.csv") else {
             return Ok(None);
-        }
-        let particles = recording.with_file_name("ground_truth_particles.csv");
+        };
         Ok(Some(Self {
             poses: read_ground_truth(&path)?,
-            particles: if particles.is_file() {
-                read_ground_truth_particles(&particles)?
-            } else {
-                ParticleTruth::new()
+            particles: match file_beside(recording, "ground_truth_particles.csv") {
+                Some(particles) => read_ground_truth_particles(&particles)?,
+                None => ParticleTruth::new(),
             },
             registered,
             registration: BTreeMap::new(),
@@ -142,6 +140,17 @@ pub fn stats(errors: &[f32]) -> ErrorStats {
         p95_mm: p95 * 1e3,
         final_mm: errors[errors.len() - 1] * 1e3,
     }
+}
+
+/// `name` beside the recording file, or beside the rosbag2 directory that holds it.
+fn file_beside(recording: &Path, name: &str) -> Option<std::path::PathBuf> {
+    let here = recording.with_file_name(name);
+    if here.is_file() {
+        return Some(here);
+    }
+    let bag = recording.parent()?;
+    let up = bag.with_file_name(name);
+    (bag.join("metadata.yaml").is_file() && up.is_file()).then_some(up)
 }
 
 /// Ground-truth poses per object: time-ordered `(t, pose)`.

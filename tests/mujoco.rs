@@ -1,0 +1,201 @@
+//! Recordings pegs did not make: MuJoCo simulates and renders a scene (the Panda from the bundled
+//! URDF as MuJoCo reads it, driven by MuJoCo's own inverse kinematics; free bodies; its own
+//! rasteriser), `rosbags` writes the rosbag2 bag, and pegs replays it from a configuration that
+//! names only the objects, the table friction and the robot (`tests/mujoco/generate.py`).
+//!
+//! The recorder runs in the venv that `tests/run_all.sh` makes (`tests/mujoco/setup_venv.sh`),
+//! named by `PEGS_MUJOCO_PYTHON`. Seeds here were never used for tuning (tuning used 0 to 4).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn python() -> PathBuf {
+    match std::env::var_os("PEGS_MUJOCO_PYTHON") {
+        Some(p) => PathBuf::from(p),
+        None => panic!(
+            "PEGS_MUJOCO_PYTHON is not set: run tests/run_all.sh, or make the venv with \
+             `bash tests/mujoco/setup_venv.sh VENV` and set PEGS_MUJOCO_PYTHON=VENV/bin/python"
+        ),
+    }
+}
+
+fn run(command: &mut Command) -> String {
+    let o = command.output().unwrap();
+    assert!(
+        o.status.success(),
+        "{command:?} failed: {}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// Record scene `kind` of `seed` with MuJoCo at 320x180, in the recording shape drawn for the
+/// seed or `shape`; its folder.
+fn record(kind: &str, seed: u32, shape: Option<&str>) -> PathBuf {
+    let out = std::env::temp_dir().join(format!("pegs-mujoco-{}", std::process::id()));
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/mujoco/generate.py");
+    let seed = seed.to_string();
+    let mut args = vec![script.to_str().unwrap(), "--kind", kind, "--seed", &seed];
+    args.extend(["--out", out.to_str().unwrap()]);
+    if let Some(shape) = shape {
+        args.extend(["--shape", shape]);
+    }
+    run(Command::new(python()).args(&args));
+    out.join(format!("{kind}_{seed}"))
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// `pegs replay` of a recorded folder with its configuration; metrics.json.
+fn replay(folder: &Path, extra: &[&str]) -> serde_json::Value {
+    let out = folder.join("out");
+    let bag = folder.join("bag/bag.mcap");
+    let config = folder.join("config.yaml");
+    let mut args = vec![
+        "replay",
+        bag.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    run(Command::new(env!("CARGO_BIN_EXE_pegs")).args(&args));
+    json(&out.join("metrics.json"))
+}
+
+/// How far the object's true centre moved over the recording, m.
+fn truth_travel(folder: &Path, object: &str) -> f64 {
+    let text = std::fs::read_to_string(folder.join("ground_truth.csv")).unwrap();
+    let points: Vec<[f64; 3]> = text
+        .lines()
+        .skip(1)
+        .filter(|l| l.split(',').nth(1) == Some(object))
+        .map(|l| {
+            let f: Vec<f64> = l
+                .split(',')
+                .skip(2)
+                .take(3)
+                .map(|x| x.parse().unwrap())
+                .collect();
+            [f[0], f[1], f[2]]
+        })
+        .collect();
+    let (a, b) = (points[0], points[points.len() - 1]);
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+fn error_mm(metrics: &serde_json::Value, object: &str, stat: &str) -> f64 {
+    metrics["tracking_error"][object][stat]
+        .as_f64()
+        .unwrap_or_else(|| panic!("no {stat} tracking error of {object}: {metrics}"))
+}
+
+/// An object at rest in another engine's recording: the world built from its first RGB-D frames
+/// and masks stays on it (no drift from shading pegs's renderer does not model).
+#[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
+fn an_object_at_rest_in_another_engines_recording_stays_tracked() {
+    let folder = record("control_still", 11, None);
+    let m = replay(&folder, &[]);
+    let (mean, last) = (
+        error_mm(&m, "obj1", "mean_mm"),
+        error_mm(&m, "obj1", "final_mm"),
+    );
+    println!("still: mean {mean:.2} mm, final {last:.2} mm");
+    assert!(truth_travel(&folder, "obj1") < 0.002, "the object rests");
+    assert!(mean < 2.0 && last < 3.0, "mean {mean} mm, final {last} mm");
+}
+
+/// An object the robot pushes in another engine's recording: the robot moved by the recorded
+/// joint states, the object by pegs's physics and the visual forces, compared with where MuJoCo
+/// put it. Visual forces make the tracking better than the physics alone.
+#[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
+fn an_object_pushed_in_another_engines_recording_is_tracked_through_the_push() {
+    let folder = record("control_pushed", 12, None);
+    let travel = truth_travel(&folder, "obj1");
+    let m = replay(&folder, &["--compare"]);
+    let mean = error_mm(&m, "obj1", "mean_mm");
+    let physics = m["comparison"]["obj1"]["physics_only_mean_mm"]
+        .as_f64()
+        .unwrap();
+    println!(
+        "pushed {:.0} mm: mean {mean:.2} mm, physics only {physics:.2} mm",
+        travel * 1e3
+    );
+    assert!(travel > 0.03, "the robot pushes the object: {travel} m");
+    // Today's bar (the README's third-party table has every case); issue 25 asks for 5 mm.
+    assert!(mean < 15.0, "mean {mean} mm");
+    assert!(mean < physics, "visual forces help: {mean} vs {physics} mm");
+}
+
+/// The push's time span in a recording's hidden truth (the first push's start, the last's end).
+fn push_span(folder: &Path) -> (f64, f64) {
+    let truth = json(&folder.join("truth.json"));
+    let pushes = truth["pushes"].as_array().unwrap();
+    let t0 = pushes[0]["t0"].as_f64().unwrap();
+    let t1 = pushes[pushes.len() - 1]["t1"].as_f64().unwrap();
+    (t0, t1)
+}
+
+/// Open-loop predictions from tracked states move the robot as it was recorded, so a push
+/// continues in them: on a control (nothing concealed) the object predicted 0.2 s and 1 s ahead
+/// from a state in the middle of the push lands within a few mm of where tracking found it.
+#[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
+fn predictions_during_a_push_follow_the_recorded_robot() {
+    let folder = record("control_pushed", 13, Some("long_push"));
+    let config = pegs::config::Config::load(&folder.join("config.yaml")).unwrap();
+    let opts = pegs::replay::ReplayOptions {
+        progress: false,
+        capture: true,
+        ..Default::default()
+    };
+    let bag = folder.join("bag/bag.mcap");
+    let metrics = pegs::replay::run(&bag, &config, &folder.join("traced"), opts).unwrap();
+    let trace = metrics.trace.unwrap();
+    let object = trace.base.shape_id("obj1").unwrap();
+    let (t0, t1) = push_span(&folder);
+    let dt = trace.dt();
+    // States from 0.3 s into the push until 1 s before it ends, every 0.1 s.
+    let starts: Vec<usize> = (0..trace.states.len())
+        .filter(|&k| {
+            let t = trace.states[k].time;
+            t > t0 + 0.3 && t < t1 - 1.0 && k % 3 == 0
+        })
+        .collect();
+    assert!(starts.len() >= 5, "{} states during the push", starts.len());
+    let median_mm = |trace: &pegs::trace::Trace, horizon_s: f64| {
+        let horizon = (horizon_s / dt).round() as usize;
+        let p = trace
+            .predict(&trace.physics, object, &starts, horizon)
+            .unwrap();
+        let mut e: Vec<f32> = p.iter().map(|p| p.error * 1e3).collect();
+        e.sort_by(f32::total_cmp);
+        e[e.len() / 2]
+    };
+    let (short, long) = (median_mm(&trace, 0.2), median_mm(&trace, 1.0));
+    // The same predictions with the robot frozen where each state found it.
+    let frozen = pegs::trace::Trace {
+        robot: None,
+        ..trace.clone()
+    };
+    let (short_frozen, long_frozen) = (median_mm(&frozen, 0.2), median_mm(&frozen, 1.0));
+    println!(
+        "push {t0:.1}-{t1:.1} s: median prediction error 0.2 s {short:.2} mm, 1 s {long:.2} mm; \
+         robot frozen {short_frozen:.2} / {long_frozen:.2} mm"
+    );
+    // With the robot driven as recorded the push goes on in the prediction; frozen, the object
+    // stops where the state found it. (A few mm at 1 s is the goal: the model's rod is a
+    // particle radius fatter than the URDF's, so predictions run ahead of the push.)
+    assert!(short < 3.0, "0.2 s predictions miss by {short} mm");
+    assert!(long < 15.0, "1 s predictions miss by {long} mm");
+    assert!(
+        short < 0.75 * short_frozen && long < 0.67 * long_frozen,
+        "a frozen robot misses the push: {short_frozen} / {long_frozen} vs {short} / {long} mm"
+    );
+}

@@ -1,0 +1,295 @@
+"""Concealed-physics scenes for the third-party test set: what is on the table, how the robot
+pushes, and the effect pegs's model is not told about (the hidden truth), drawn at random from a
+seed. Owns the draws only; never simulates (simulate.py) or writes (write.py).
+
+Units SI, world z up; the Panda's base is at the origin and reaches the table around x = 0.5 m.
+Every parameter of a scene comes from `random.Random(seed)`, so a seed is a scene.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass, field
+
+# The families a scene can hide, and the two controls.
+KINDS = ["control_pushed", "control_still", "tilt", "drag", "patch", "weight", "tether", "heavy", "restitution"]
+
+# Recording shapes: one push then rest, a push that lasts the whole recording, several pushes.
+SHAPES = ["push_then_rest", "long_push", "several_pushes"]
+
+COLOURS = [(0.95, 0.45, 0.1), (0.2, 0.4, 0.9), (0.2, 0.75, 0.3)]
+
+
+@dataclass
+class Part:
+    """A box of the object in its body frame: centre (m) and half sizes (m)."""
+
+    centre: tuple[float, float, float]
+    half: tuple[float, float, float]
+
+
+@dataclass
+class Obj:
+    name: str
+    label: int  # instance-mask value
+    shape: str  # box | cylinder | bar | tblock
+    mass: float  # kg, what the user's configuration says
+    x: float
+    y: float
+    yaw: float
+    z: float = 0.0  # height of the body frame above its resting height (a drop)
+    colour: tuple[float, float, float] = (0.95, 0.45, 0.1)
+    # cylinder: (radius, half height); others: parts
+    radius: float = 0.0
+    half_height: float = 0.0
+    parts: list[Part] = field(default_factory=list)
+    true_mass: float = 0.0  # kg, what the engine simulates (differs in `heavy`)
+    com_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # body frame, m (`weight`)
+
+    def footprint(self) -> float:
+        """Radius of the object's footprint on the table, m."""
+        if self.shape == "cylinder":
+            return self.radius
+        return max(math.hypot(abs(p.centre[0]) + p.half[0], abs(p.centre[1]) + p.half[1]) for p in self.parts)
+
+    def extent(self, d: tuple[float, float]) -> float:
+        """How far the object reaches from its body origin in world direction `d` (unit, on the table)."""
+        if self.shape == "cylinder":
+            return self.radius
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        bx, by = c * d[0] + s * d[1], -s * d[0] + c * d[1]
+        return max(p.centre[0] * bx + p.centre[1] * by + p.half[0] * abs(bx) + p.half[1] * abs(by) for p in self.parts)
+
+    def crossed_by(self, point: tuple[float, float], d: tuple[float, float], margin: float) -> bool:
+        """Whether the line through `point` along `d` crosses the object's outline shrunk by
+        `margin` (on the table, object at rest where it was drawn)."""
+        if self.shape == "cylinder":
+            px, py = point[0] - self.x, point[1] - self.y
+            return abs(px * -d[1] + py * d[0]) < self.radius - margin
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        for p in self.parts:
+            cx = self.x + c * p.centre[0] - s * p.centre[1]
+            cy = self.y + s * p.centre[0] + c * p.centre[1]
+            # The line in the part's frame, clipped against each slab of the shrunk rectangle.
+            q = ((point[0] - cx) * c + (point[1] - cy) * s, -(point[0] - cx) * s + (point[1] - cy) * c)
+            e = (d[0] * c + d[1] * s, -d[0] * s + d[1] * c)
+            lo, hi = -math.inf, math.inf
+            for k in range(2):
+                h = p.half[k] - margin
+                if h <= 0:
+                    lo, hi = 1.0, 0.0
+                elif abs(e[k]) < 1e-9:
+                    if abs(q[k]) > h:
+                        lo, hi = 1.0, 0.0
+                else:
+                    a, b = (-h - q[k]) / e[k], (h - q[k]) / e[k]
+                    lo, hi = max(lo, min(a, b)), min(hi, max(a, b))
+            if lo < hi:
+                return True
+        return False
+
+    def half_height_z(self) -> float:
+        if self.shape == "cylinder":
+            return self.half_height
+        return max(p.half[2] for p in self.parts)
+
+
+@dataclass
+class Push:
+    """The pusher tip moves from `start` to `end` (x, y on the table) between t0 and t1."""
+
+    t0: float
+    t1: float
+    start: tuple[float, float]
+    end: tuple[float, float]
+
+
+@dataclass
+class Scene:
+    kind: str
+    seed: int
+    shape: str
+    duration: float
+    friction: float  # table and objects, what the user's configuration says
+    objects: list[Obj]
+    pushes: list[Push]
+    # The hidden truth: family, parameter and where (the judge reads this, pegs never does).
+    truth: dict
+    # Engine-side settings of the effect.
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    drag: float = 0.0  # N s/m on the first object
+    patch: dict | None = None  # {"edge_point": [x, y], "normal": [x, y], "friction": mu}: beyond the edge
+    spring: dict | None = None  # {"anchor": [x, y, z], "point": body-frame [x, y, z], "stiffness": N/m, "rest_length": m}
+    restitution: float | None = None  # MuJoCo contact damping ratio of the dropped object
+
+
+def make_object(rng: random.Random, shape: str, name: str, label: int, x: float, y: float) -> Obj:
+    """An object of `shape` with random size and mass, resting at (x, y) with a random yaw."""
+    colour = COLOURS[(label - 1) % len(COLOURS)]
+    yaw = rng.uniform(-math.pi, math.pi)
+    mass = round(rng.uniform(0.15, 0.4), 3)
+    o = Obj(name=name, label=label, shape=shape, mass=mass, x=x, y=y, yaw=yaw, colour=colour, true_mass=mass)
+    h = rng.uniform(0.015, 0.025)
+    if shape == "cylinder":
+        o.radius, o.half_height = rng.uniform(0.03, 0.045), h
+    elif shape == "box":
+        o.parts = [Part((0, 0, 0), (rng.uniform(0.03, 0.05), rng.uniform(0.025, 0.04), h))]
+    elif shape == "bar":
+        o.parts = [Part((0, 0, 0), (rng.uniform(0.09, 0.12), rng.uniform(0.015, 0.02), h))]
+    elif shape == "tblock":
+        # The top bar along x at +y, the stem below it along y.
+        w, t = rng.uniform(0.08, 0.1), rng.uniform(0.022, 0.028)
+        stem = rng.uniform(0.06, 0.075)
+        o.parts = [Part((0, t, 0), (w, t, h)), Part((0, -stem, 0), (t, stem, h))]
+    else:
+        raise ValueError(f"unknown shape {shape}")
+    return o
+
+
+# Kinds whose effect shows while an object slides free: their short pushes are strikes, fast
+# enough that the object slides on after the rod stops. (A long, slow push hides them: then the
+# honest verdict is "not enough evidence".)
+STRIKES = {"drag", "tilt", "patch", "heavy"}
+
+
+def plan_pushes(rng: random.Random, shape: str, target: Obj, duration: float, strike: bool) -> list[Push]:
+    """Pushes across `target` from random sides, shaped as `shape` within `duration`; short pushes
+    at 8-14 cm/s, or 30-45 cm/s when they `strike`."""
+    speeds = (0.3, 0.45) if strike else (0.08, 0.14)
+
+    def push(t0: float, t1: float, centre: tuple[float, float], length: float) -> Push:
+        # Square on to one of the object's faces (within 15 degrees; a glancing push slides off),
+        # and not straight at the robot's base, so the arm does not fold over.
+        if target.shape == "cylinder":
+            heading = rng.uniform(-0.6, 0.6) + rng.choice([0.0, math.pi / 2, -math.pi / 2])
+        else:
+            faces = [target.yaw + k * math.pi / 2 for k in range(4)]
+            heading = rng.choice([a for a in faces if math.cos(a) > -0.5]) + rng.uniform(-0.26, 0.26)
+        d = (math.cos(heading), math.sin(heading))
+        # Off the centre line by part of the object's half width, so the object turns one way
+        # (a push through the centre of mass is the unstable case: any engine may turn it
+        # either way).
+        side = (-d[1], d[0])
+        width = min(target.extent(side), target.extent((-side[0], -side[1])))
+        for _ in range(50):
+            lateral = rng.choice([-1.0, 1.0]) * rng.uniform(0.3, 0.6) * width
+            line = (centre[0] + side[0] * lateral, centre[1] + side[1] * lateral)
+            # The rod must strike the object squarely, a centimetre inside its outline.
+            if target.crossed_by(line, d, 0.01):
+                break
+        else:
+            line = centre
+        centre = line
+        # The rod starts 3 cm before the object's face and travels `length` beyond it.
+        back = target.extent((-d[0], -d[1])) + 0.03
+        start = (centre[0] - d[0] * back, centre[1] - d[1] * back)
+        travel = 0.03 + length
+        return Push(t0, t1, start, (start[0] + d[0] * travel, start[1] + d[1] * travel))
+
+    centre = (target.x, target.y)
+    if shape == "push_then_rest":
+        length = rng.uniform(0.06, 0.1)
+        t0 = rng.uniform(0.3, 0.6)
+        return [push(t0, t0 + length / rng.uniform(*speeds), centre, length)]
+    if shape == "long_push":
+        length = rng.uniform(0.1, 0.14)
+        return [push(0.3, duration - 0.2, centre, length)]
+    pushes, t = [], 0.3
+    for _ in range(rng.choice([2, 3])):
+        length = rng.uniform(0.04, 0.07)
+        p = push(t, t + length / rng.uniform(*speeds), centre, length)
+        pushes.append(p)
+        # The next push starts where this one left the object (roughly) after a pause to rest.
+        dx, dy = p.end[0] - p.start[0], p.end[1] - p.start[1]
+        n = math.hypot(dx, dy)
+        centre = (centre[0] + dx / n * (length - 0.005), centre[1] + dy / n * (length - 0.005))
+        t = p.t1 + rng.uniform(0.8, 1.2)
+    return pushes
+
+
+def draw(kind: str, seed: int, shape: str | None = None) -> Scene:
+    """The scene of `kind` for `seed` (recording shape drawn too unless given)."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown kind {kind} (one of {', '.join(KINDS)})")
+    rng = random.Random(f"{kind}/{seed}")
+    shape = shape or rng.choice(SHAPES)
+    # A slippery table where the effect shows in sliding, so that an object slides a few cm.
+    friction = round(rng.uniform(0.12, 0.2) if kind in ("drag", "tilt") else rng.uniform(0.35, 0.6), 3)
+    x, y = rng.uniform(0.47, 0.55), rng.uniform(-0.08, 0.08)
+    obj_shape = rng.choice(["box", "cylinder", "bar", "tblock"])
+    first = make_object(rng, obj_shape, "obj1", 1, x, y)
+    objects = [first]
+    duration = 4.0 if shape != "several_pushes" else 5.5
+    pushes = plan_pushes(rng, shape, first, duration, kind in STRIKES)
+    truth: dict = {"family": "none", "object": first.name}
+    s = Scene(kind, seed, shape, duration, friction, objects, pushes, truth)
+    if kind == "control_still":
+        s.shape, s.pushes, s.duration = "still", [], 3.0
+    elif kind == "tilt":
+        angle = math.radians(rng.uniform(1.5, 3.0))
+        azimuth = rng.uniform(-math.pi, math.pi)
+        g = 9.81
+        s.gravity = (g * math.sin(angle) * math.cos(azimuth), g * math.sin(angle) * math.sin(azimuth), -g * math.cos(angle))
+        force = first.true_mass * g * math.sin(angle)
+        s.truth = {"family": "constant_force", "object": first.name, "parameter": force, "unit": "N",
+                   "direction": [math.cos(azimuth), math.sin(azimuth), 0.0], "tilt_deg": math.degrees(angle)}
+    elif kind == "drag":
+        s.drag = round(rng.uniform(0.6, 1.6), 3)
+        s.truth = {"family": "viscous_drag", "object": first.name, "parameter": s.drag, "unit": "N s/m"}
+    elif kind == "patch":
+        # A slippery or sticky band across the push's path, starting part way along it.
+        p = s.pushes[0]
+        d = (p.end[0] - p.start[0], p.end[1] - p.start[1])
+        mid = (p.start[0] + 0.6 * d[0], p.start[1] + 0.6 * d[1])
+        mu = round(rng.choice([rng.uniform(0.1, 0.2), rng.uniform(0.9, 1.2)]), 3)
+        n = math.hypot(*d)
+        # The table beyond a straight edge across the path (through `mid`, facing along the push).
+        s.patch = {"edge_point": list(mid), "normal": [d[0] / n, d[1] / n], "friction": mu}
+        s.truth = {"family": "friction_patch", "object": first.name, "parameter": mu, "unit": "",
+                   "edge_point": list(mid), "normal": [d[0] / n, d[1] / n]}
+    elif kind == "weight":
+        # A hidden weight: the centre of mass moved along the object's longest extent.
+        if first.shape == "cylinder":
+            reach = 0.6 * first.radius
+        else:
+            reach = 0.6 * max(abs(p.centre[0]) + p.half[0] for p in first.parts)
+        sign = rng.choice([-1.0, 1.0])
+        first.com_offset = (sign * rng.uniform(0.5, 1.0) * reach, 0.0, 0.0)
+        s.truth = {"family": "center_of_mass_offset", "object": first.name,
+                   "parameter": abs(first.com_offset[0]), "unit": "m", "offset_body": list(first.com_offset)}
+    elif kind == "tether":
+        # A cord from the object's centre to an anchor on the table, slack at the start.
+        p = s.pushes[0]
+        d = (p.end[0] - p.start[0], p.end[1] - p.start[1])
+        n = math.hypot(*d)
+        anchor = [x - d[0] / n * 0.12, y - d[1] / n * 0.12, 0.0]
+        # Strong enough to beat friction: the object snaps back when the rod lets go.
+        k = round(rng.uniform(15.0, 40.0), 3)
+        s.spring = {"anchor": anchor, "point": [0.0, 0.0, 0.0], "stiffness": k, "rest_length": 0.12}
+        s.truth = {"family": "spring", "object": first.name, "parameter": k, "unit": "N/m", "anchor": anchor}
+    elif kind == "heavy":
+        # A second object in the first one's path, heavier than the configuration says.
+        p = s.pushes[0]
+        d = (p.end[0] - p.start[0], p.end[1] - p.start[1])
+        n = math.hypot(*d)
+        gap = first.footprint() + 0.045
+        second = make_object(rng, rng.choice(["box", "cylinder"]), "obj2", 2, x + d[0] / n * gap, y + d[1] / n * gap)
+        second.mass = first.mass
+        ratio = round(rng.uniform(2.0, 4.0), 3)
+        second.true_mass = second.mass * ratio
+        objects.append(second)
+        # Long enough to carry the first object into the second.
+        if s.shape == "push_then_rest":
+            p.end = (p.end[0] + d[0] / n * 0.05, p.end[1] + d[1] / n * 0.05)
+            p.t1 += 0.4
+        s.truth = {"family": "mass_error", "object": second.name, "parameter": ratio, "unit": "",
+                   "ratio_to": first.name}
+    elif kind == "restitution":
+        # Dropped from a height; the robot stays parked.
+        first.z = round(rng.uniform(0.08, 0.15), 3)
+        s.shape, s.pushes, s.duration = "drop", [], 2.5
+        # MuJoCo's contact damping ratio; the coefficient it gives is measured from the bounce.
+        s.restitution = rng.uniform(0.08, 0.2)
+        s.truth = {"family": "restitution", "object": first.name, "parameter": None, "unit": ""}
+    return s

@@ -1,0 +1,331 @@
+"""A scene (scenes.py) simulated and rendered by MuJoCo: the Panda from pegs's URDF as MuJoCo
+reads it, driven kinematically through MuJoCo's own inverse kinematics along the pushing plan;
+the objects as free bodies with the scene's hidden effect applied by the engine; three cameras
+rendering colour, depth and instance labels offscreen (EGL). Owns the engine side only; never
+writes files (write.py).
+
+Nothing here uses pegs's physics, kinematics or renderer: that is the point of the test set.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from scenes import Obj, Scene
+
+FRAME_RATE = 30.0
+SUBSTEPS = 20  # engine steps per frame (600 Hz)
+JOINT_RATE_DIVIDER = 6  # joint states at 100 Hz
+TIP = (0.0, 0.0, -0.14)  # the rod's tip in the panda_pusher link frame
+TIP_HEIGHT = 0.02  # above the table while pushing
+PARKED = (0.3, -0.35, 0.25)  # where the tip waits in a scene without pushes
+HOME = [0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785]
+
+
+@dataclass
+class CameraModel:
+    name: str
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    # The optical frame (REP-105: z forward, y down) in the world: rotation matrix and position.
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+@dataclass
+class Frame:
+    t: float
+    rgb: list[np.ndarray]  # per camera, HxWx3 uint8
+    depth: list[np.ndarray]  # per camera, HxW float32 metres (0: nothing)
+    labels: list[np.ndarray]  # per camera, HxW uint8 (object label, 0 elsewhere)
+
+
+@dataclass
+class Run:
+    cameras: list[CameraModel]
+    joint_names: list[str]
+    joint_states: list[tuple[float, list[float]]]
+    poses: list[tuple[float, str, np.ndarray, np.ndarray]]  # t, object, position, quaternion x,y,z,w
+    frames: list[Frame]
+    measured: dict  # quantities measured from the simulation (a bounce's restitution)
+
+
+def look_at_quat(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """MuJoCo camera orientation (w, x, y, z): looking along -z with y up, from eye to target."""
+    f = target - eye
+    f /= np.linalg.norm(f)
+    right = np.cross(f, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, f)
+    mat = np.column_stack([right, up, -f])
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, mat.flatten())
+    return q
+
+
+def inertia(o: Obj) -> tuple[np.ndarray, np.ndarray]:
+    """Centre of mass (body frame) and principal moments of the object at uniform density."""
+    if o.shape == "cylinder":
+        r, h = o.radius, o.half_height
+        m = o.true_mass
+        i_xy = m * (3 * r * r + 4 * h * h) / 12
+        return np.zeros(3), np.array([i_xy, i_xy, m * r * r / 2])
+    vols = [8 * p.half[0] * p.half[1] * p.half[2] for p in o.parts]
+    total = sum(vols)
+    com = sum(np.array(p.centre) * v for p, v in zip(o.parts, vols)) / total
+    moments = np.zeros(3)
+    for p, v in zip(o.parts, vols):
+        m = o.true_mass * v / total
+        a, b, c = (2 * np.array(p.half)) ** 2
+        d = np.array(p.centre) - com
+        # Diagonal of the inertia about the common centre (parallel axes; products neglected).
+        moments += m * np.array([(b + c) / 12, (a + c) / 12, (a + b) / 12])
+        moments += m * np.array([d[1] ** 2 + d[2] ** 2, d[0] ** 2 + d[2] ** 2, d[0] ** 2 + d[1] ** 2])
+    return com, moments
+
+
+def build(scene: Scene, urdf: str, width: int, height: int, rng: np.random.Generator) -> tuple:
+    """The MuJoCo model of `scene`, and its cameras (with a small random jitter of the rig)."""
+    spec = mujoco.MjSpec.from_file(urdf)
+    spec.compiler.fusestatic = False
+    spec.option.timestep = 1.0 / (FRAME_RATE * SUBSTEPS)
+    spec.option.gravity = list(scene.gravity)
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    spec.visual.global_.offwidth = width
+    spec.visual.global_.offheight = height
+    for body in spec.bodies:
+        if body.name.startswith("panda"):
+            # The arm is driven kinematically; heavy links barely yield to what they push.
+            body.mass = max(body.mass, 1e-3) * 50.0
+            body.gravcomp = 1.0
+    for g in spec.geoms:
+        g.rgba = [0.92, 0.92, 0.92, 1.0]
+        # The configuration's one friction for every contact (MuJoCo takes the larger of two).
+        g.friction = [scene.friction, 0.005, 0.0001]
+    spec.body("panda_pusher").add_site(name="tip", pos=list(TIP))
+    world = spec.worldbody
+    # With a friction patch the floor is frictionless and each object carries the friction of
+    # where it stands (MuJoCo takes the larger friction of two touching geoms).
+    floor_mu = 0.0 if scene.patch else scene.friction
+    world.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1], rgba=[0.55, 0.55, 0.52, 1],
+                   friction=[floor_mu, 0.005, 0.0001])
+    world.add_light(pos=[0.5, 0.0, 1.5], dir=[0, 0, -1], diffuse=[0.6, 0.6, 0.6], castshadow=False)
+    world.add_light(pos=[1.2, -0.8, 1.2], dir=[-0.6, 0.6, -1], diffuse=[0.3, 0.3, 0.3], castshadow=False)
+    for o in scene.objects:
+        com, moments = inertia(o)
+        body = world.add_body(name=o.name, pos=[o.x, o.y, o.half_height_z() + o.z],
+                              quat=[math.cos(o.yaw / 2), 0, 0, math.sin(o.yaw / 2)])
+        body.add_freejoint()
+        body.explicitinertial = True
+        body.mass = o.true_mass
+        body.ipos = list(com + np.array(o.com_offset))
+        body.inertia = list(moments)
+        geom = dict(rgba=[*o.colour, 1.0], friction=[scene.friction, 0.005, 0.0001], density=0.0)
+        if scene.restitution is not None:
+            geom["solref"] = [0.005, scene.restitution]
+        if o.shape == "cylinder":
+            body.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[o.radius, o.half_height, 0], **geom)
+        for p in o.parts:
+            body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=list(p.centre), size=list(p.half), **geom)
+    fovy = 42.0
+    target = np.array([0.5, 0.0, 0.02])
+    eyes = [np.array([1.05, -0.45, 0.55]), np.array([1.0, 0.5, 0.6]), np.array([0.3, -0.6, 0.65])]
+    names = []
+    for k, eye in enumerate(eyes):
+        eye = eye + rng.uniform(-0.03, 0.03, 3)
+        name = f"cam{k}"
+        world.add_camera(name=name, pos=list(eye), quat=list(look_at_quat(eye, target)), fovy=fovy)
+        names.append(name)
+    model = spec.compile()
+    fy = 0.5 * height / math.tan(math.radians(fovy) / 2)
+    cameras = [CameraModel(n, width, height, fy, fy, width / 2, height / 2) for n in names]
+    return model, cameras
+
+
+def tip_target(scene: Scene, t: float) -> np.ndarray:
+    """Where the pusher tip should be at `t`: on a push's line while it pushes, lifted between
+    pushes, coming down before the first and backing off and up after the last; parked away from
+    the objects in a scene without pushes."""
+    if not scene.pushes:
+        return np.array(PARKED)
+    first, last = scene.pushes[0], scene.pushes[-1]
+    lift = 0.35  # s to come down to, or up from, a push
+    for k, p in enumerate(scene.pushes):
+        if p.t0 <= t <= p.t1:
+            a = (t - p.t0) / (p.t1 - p.t0)
+            return np.array([*(np.array(p.start) * (1 - a) + np.array(p.end) * a), TIP_HEIGHT])
+        if k + 1 < len(scene.pushes) and p.t1 < t < scene.pushes[k + 1].t0:
+            # Up and back over to the next start.
+            q = scene.pushes[k + 1]
+            a = (t - p.t1) / (q.t0 - p.t1)
+            xy = np.array(p.end) * (1 - a) + np.array(q.start) * a
+            return np.array([*xy, TIP_HEIGHT + 0.08 * math.sin(math.pi * a)])
+    if t < first.t0:
+        # Hovering over the first push's start, then coming down to it.
+        a = min(1.0, max(0.0, 1 - (first.t0 - t) / lift))
+        above = np.array([*first.start, TIP_HEIGHT + 0.08])
+        down = np.array([*first.start, TIP_HEIGHT])
+        return above + (down - above) * a
+    a = min(1.0, (t - last.t1) / lift)
+    end = np.array([*last.end, TIP_HEIGHT])
+    # Back off along the push, then up.
+    d = np.array(last.end) - np.array(last.start)
+    d /= np.linalg.norm(d)
+    return end + np.array([*(-0.03 * a * d), 0.1 * a])
+
+
+def solve_ik(model: mujoco.MjModel, data: mujoco.MjData, target: np.ndarray, q: np.ndarray, iterations: int = 60) -> np.ndarray:
+    """Joint angles that put the tip at `target` with the rod pointing down (damped least
+    squares on MuJoCo's Jacobians, from `q`)."""
+    site = model.site("tip").id
+    body = model.body("panda_pusher").id
+    nq = len(q)
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    for _ in range(iterations):
+        data.qpos[:nq] = q
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        err_p = target - data.site_xpos[site]
+        # The link's z axis points up when the rod points down.
+        z = data.xmat[body].reshape(3, 3)[:, 2]
+        err_r = np.cross(z, [0.0, 0.0, 1.0])
+        if np.linalg.norm(err_p) < 1e-5 and np.linalg.norm(err_r) < 1e-4:
+            break
+        mujoco.mj_jacSite(model, data, jacp, jacr, site)
+        J = np.vstack([jacp[:, :nq], jacr[:, :nq]])
+        e = np.concatenate([err_p, err_r])
+        dq = J.T @ np.linalg.solve(J @ J.T + 1e-4 * np.eye(6), e)
+        q = q + dq
+        q = np.clip(q, model.jnt_range[:nq, 0], model.jnt_range[:nq, 1])
+    return q
+
+
+def robot_plan(model: mujoco.MjModel, scene: Scene, times: np.ndarray) -> np.ndarray:
+    """Joint angles at each time of `times` (IK warm-started from the previous one)."""
+    data = mujoco.MjData(model)
+    nq = 7
+    q = np.array(HOME)
+    q = solve_ik(model, data, tip_target(scene, 0.0), q, 300)
+    out = np.zeros((len(times), nq))
+    for k, t in enumerate(times):
+        q = solve_ik(model, data, tip_target(scene, t), q)
+        out[k] = q
+    return out
+
+
+def label_image(model: mujoco.MjModel, seg: np.ndarray, labels: dict[int, int]) -> np.ndarray:
+    """Instance labels from MuJoCo's segmentation (geom ids) through the geoms' bodies."""
+    ids, types = seg[..., 0], seg[..., 1]
+    out = np.zeros(ids.shape, np.uint8)
+    geom = types == int(mujoco.mjtObj.mjOBJ_GEOM)
+    for body, label in labels.items():
+        geoms = np.flatnonzero(model.geom_bodyid == body)
+        out[geom & np.isin(ids, geoms)] = label
+    return out
+
+
+def apply_effects(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene, bodies: list[int]) -> None:
+    """The hidden effect as the engine applies it, before a step."""
+    data.xfrc_applied[:] = 0.0
+    first = bodies[0]
+    if scene.drag:
+        v = np.zeros(6)
+        mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, first, v, 0)
+        data.xfrc_applied[first, :3] = -scene.drag * v[3:]
+    if scene.spring:
+        s = scene.spring
+        point = data.xpos[first] + data.xmat[first].reshape(3, 3) @ np.array(s["point"])
+        d = np.array(s["anchor"]) - point
+        n = np.linalg.norm(d)
+        if n > s["rest_length"]:
+            f = s["stiffness"] * (n - s["rest_length"]) * d / n
+            data.xfrc_applied[first, :3] = f
+            # Applied at `point`, not at the centre of mass: add its torque.
+            data.xfrc_applied[first, 3:] = np.cross(point - data.xipos[first], f)
+    if scene.patch:
+        p = scene.patch
+        for body in bodies:
+            inside = np.dot(data.xipos[body][:2] - np.array(p["edge_point"]), p["normal"]) > 0
+            mu = p["friction"] if inside else scene.friction
+            model.geom_friction[model.geom_bodyid == body, 0] = mu
+
+
+def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
+    rng = np.random.default_rng(zlib.crc32(f"{scene.kind}/{scene.seed}".encode()))
+    model, cameras = build(scene, urdf, width, height, rng)
+    data = mujoco.MjData(model)
+    nq = 7
+    bodies = [model.body(o.name).id for o in scene.objects]
+    labels = {b: o.label for b, o in zip(bodies, scene.objects)}
+    dt = model.opt.timestep
+    steps = int(round(scene.duration * FRAME_RATE)) * SUBSTEPS
+    times = np.arange(steps + 1) * dt
+    plan = robot_plan(model, scene, times)
+    data.qpos[:nq] = plan[0]
+    mujoco.mj_forward(model, data)
+    for cam in cameras:
+        c = model.camera(cam.name).id
+        cam.position = data.cam_xpos[c].copy()
+        # MuJoCo's camera frame looks along -z with y up; the optical frame is it turned by pi about x.
+        cam.rotation = data.cam_xmat[c].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
+    renderer = mujoco.Renderer(model, height, width)
+    run = Run(cameras, [model.joint(j).name for j in range(nq)], [], [], [], {})
+    impacts = []
+    for k in range(steps + 1):
+        t = k * dt
+        if k % JOINT_RATE_DIVIDER == 0:
+            run.joint_states.append((t, [float(v) for v in data.qpos[:nq]]))
+        if k % SUBSTEPS == 0:
+            for o, b in zip(scene.objects, bodies):
+                run.poses.append((t, o.name, data.xpos[b].copy(), np.roll(data.xquat[b], -1).copy()))
+            run.frames.append(render(renderer, model, data, cameras, labels, t))
+        if k == steps:
+            break
+        apply_effects(model, data, scene, bodies)
+        # Kinematic robot: the plan's angles and velocities, whatever the contacts did.
+        data.qpos[:nq] = plan[k]
+        data.qvel[:nq] = (plan[k + 1] - plan[k]) / dt
+        vz_before = data.qvel[nq + 2] if scene.restitution is not None else 0.0
+        mujoco.mj_step(model, data)
+        if scene.restitution is not None:
+            vz = data.qvel[nq + 2]
+            impacts.append((vz_before, vz))
+    renderer.close()
+    if scene.restitution is not None:
+        run.measured["restitution"] = bounce_restitution(impacts)
+    return run
+
+
+def bounce_restitution(vz: list[tuple[float, float]]) -> float:
+    """The first bounce's coefficient: the largest upward speed after the first impact over the
+    fastest downward speed before it."""
+    down = [a for a, _ in vz]
+    k = int(np.argmin(down))
+    v_in = -down[k]
+    v_out = max(b for _, b in vz[k:k + 200])
+    return float(max(v_out, 0.0) / v_in)
+
+
+def render(renderer, model, data, cameras, labels, t) -> Frame:
+    frame = Frame(t, [], [], [])
+    for cam in cameras:
+        renderer.update_scene(data, camera=cam.name)
+        frame.rgb.append(renderer.render().copy())
+        renderer.enable_depth_rendering()
+        depth = renderer.render().astype(np.float32)
+        renderer.disable_depth_rendering()
+        depth[depth > 10.0] = 0.0
+        frame.depth.append(depth)
+        renderer.enable_segmentation_rendering()
+        frame.labels.append(label_image(model, renderer.render(), labels))
+        renderer.disable_segmentation_rendering()
+    return frame

@@ -1,0 +1,148 @@
+"""A simulated run (simulate.py) written as a rig would record it, with a third-party writer
+(PyPI `rosbags`): a rosbag2 directory with MCAP storage holding colour (rgb8), aligned depth
+(32FC1 metres), instance labels (mono8), CameraInfo, the optical frames on /tf_static and the
+arm's /joint_states; beside it the ground truth (`ground_truth.csv`, pegs's layout), the hidden
+truth (`truth.json`) and the configuration a user would write (`config.yaml`: cameras, objects as
+the user believes them, the robot). Owns the files only.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from scenes import Scene
+from simulate import Run
+
+TYPES = get_typestore(Stores.ROS2_JAZZY)
+Header = TYPES.types["std_msgs/msg/Header"]
+Time = TYPES.types["builtin_interfaces/msg/Time"]
+Image = TYPES.types["sensor_msgs/msg/Image"]
+CameraInfo = TYPES.types["sensor_msgs/msg/CameraInfo"]
+RegionOfInterest = TYPES.types["sensor_msgs/msg/RegionOfInterest"]
+JointState = TYPES.types["sensor_msgs/msg/JointState"]
+TFMessage = TYPES.types["tf2_msgs/msg/TFMessage"]
+TransformStamped = TYPES.types["geometry_msgs/msg/TransformStamped"]
+Transform = TYPES.types["geometry_msgs/msg/Transform"]
+Vector3 = TYPES.types["geometry_msgs/msg/Vector3"]
+Quaternion = TYPES.types["geometry_msgs/msg/Quaternion"]
+
+
+def header(t: float, frame: str):
+    sec = math.floor(t)
+    return Header(stamp=Time(sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1_000_000_000), frame_id=frame)
+
+
+def quat_xyzw(r: np.ndarray) -> list[float]:
+    """A rotation matrix as a unit quaternion x, y, z, w."""
+    w = math.sqrt(max(0.0, 1 + r[0, 0] + r[1, 1] + r[2, 2])) / 2
+    x = math.copysign(math.sqrt(max(0.0, 1 + r[0, 0] - r[1, 1] - r[2, 2])) / 2, r[2, 1] - r[1, 2])
+    y = math.copysign(math.sqrt(max(0.0, 1 - r[0, 0] + r[1, 1] - r[2, 2])) / 2, r[0, 2] - r[2, 0])
+    z = math.copysign(math.sqrt(max(0.0, 1 - r[0, 0] - r[1, 1] + r[2, 2])) / 2, r[1, 0] - r[0, 1])
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return [x / n, y / n, z / n, w / n]
+
+
+def image(t: float, frame: str, data: np.ndarray, encoding: str, step: int):
+    h, w = data.shape[:2]
+    return Image(header=header(t, frame), height=h, width=w, encoding=encoding, is_bigendian=0, step=step,
+                 data=np.frombuffer(np.ascontiguousarray(data).tobytes(), np.uint8))
+
+
+def camera_info(t: float, frame: str, c) -> object:
+    return CameraInfo(
+        header=header(t, frame), height=c.height, width=c.width, distortion_model="plumb_bob",
+        d=np.zeros(5), k=np.array([c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1], float),
+        r=np.eye(3).flatten(), p=np.array([c.fx, 0, c.cx, 0, 0, c.fy, c.cy, 0, 0, 0, 1, 0], float),
+        binning_x=0, binning_y=0,
+        roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+
+
+def write_bag(path: Path, run: Run, stamp0: float) -> None:
+    """The rosbag2 directory `path` (MCAP storage)."""
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        def connect(topic, msgtype):
+            return w.add_connection(topic, msgtype, typestore=TYPES)
+
+        tf = connect("/tf_static", "tf2_msgs/msg/TFMessage")
+        joints = connect("/joint_states", "sensor_msgs/msg/JointState")
+        per_camera = {}
+        for c in run.cameras:
+            base = f"/{c.name}"
+            per_camera[c.name] = dict(
+                info=connect(f"{base}/color/camera_info", "sensor_msgs/msg/CameraInfo"),
+                rgb=connect(f"{base}/color/image_raw", "sensor_msgs/msg/Image"),
+                depth=connect(f"{base}/depth/image_raw", "sensor_msgs/msg/Image"),
+                mask=connect(f"{base}/mask/image_raw", "sensor_msgs/msg/Image"),
+            )
+
+        def put(conn, t, msg, msgtype):
+            w.write(conn, int(round((stamp0 + t) * 1e9)), TYPES.serialize_cdr(msg, msgtype))
+
+        transforms = []
+        for c in run.cameras:
+            q = quat_xyzw(c.rotation)
+            transforms.append(TransformStamped(
+                header=header(stamp0, "world"), child_frame_id=f"{c.name}_color_optical_frame",
+                transform=Transform(translation=Vector3(x=float(c.position[0]), y=float(c.position[1]), z=float(c.position[2])),
+                                    rotation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))))
+        put(tf, 0.0, TFMessage(transforms=transforms), "tf2_msgs/msg/TFMessage")
+        # Messages in time order, as a recorder receives them.
+        events = [(t, 0, k) for k, (t, _) in enumerate(run.joint_states)]
+        events += [(f.t, 1, k) for k, f in enumerate(run.frames)]
+        for t, kind, k in sorted(events):
+            if kind == 0:
+                msg = JointState(header=header(stamp0 + t, ""), name=run.joint_names, position=np.array(run.joint_states[k][1]),
+                                 velocity=np.zeros(0), effort=np.zeros(0))
+                put(joints, t, msg, "sensor_msgs/msg/JointState")
+                continue
+            frame = run.frames[k]
+            for i, c in enumerate(run.cameras):
+                optical = f"{c.name}_color_optical_frame"
+                conns = per_camera[c.name]
+                put(conns["info"], t, camera_info(stamp0 + t, optical, c), "sensor_msgs/msg/CameraInfo")
+                put(conns["rgb"], t, image(stamp0 + t, optical, frame.rgb[i], "rgb8", 3 * c.width), "sensor_msgs/msg/Image")
+                put(conns["depth"], t, image(stamp0 + t, optical, frame.depth[i], "32FC1", 4 * c.width), "sensor_msgs/msg/Image")
+                put(conns["mask"], t, image(stamp0 + t, optical, frame.labels[i], "mono8", c.width), "sensor_msgs/msg/Image")
+
+
+def write_truth(out: Path, scene: Scene, run: Run, stamp0: float) -> None:
+    lines = ["t,object,x,y,z,qx,qy,qz,qw"]
+    for t, name, p, q in run.poses:
+        lines.append(f"{stamp0 + t:.6f},{name},{p[0]:.6f},{p[1]:.6f},{p[2]:.6f},{q[0]:.7f},{q[1]:.7f},{q[2]:.7f},{q[3]:.7f}")
+    (out / "ground_truth.csv").write_text("\n".join(lines) + "\n")
+    truth = dict(scene.truth)
+    if scene.kind == "restitution":
+        truth["parameter"] = run.measured["restitution"]
+    first = run.poses[0]
+    truth.update(kind=scene.kind, seed=scene.seed, shape=scene.shape, duration=scene.duration,
+                 friction=scene.friction, stamp0=stamp0,
+                 objects=[dict(name=o.name, shape=o.shape, mass=o.mass, true_mass=o.true_mass,
+                               com_offset=list(o.com_offset)) for o in scene.objects],
+                 pushes=[dict(t0=p.t0, t1=p.t1, start=list(p.start), end=list(p.end)) for p in scene.pushes],
+                 start_pose={"object": first[1], "position": list(map(float, first[2])), "quaternion_xyzw": list(map(float, first[3]))})
+    (out / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
+
+
+def write_config(out: Path, scene: Scene, urdf: Path) -> None:
+    """What a user knows: the table's friction, the objects' masses (as configured), the robot."""
+    objects = "\n".join(f"        - {{name: {o.name}, label: {o.label}, mass: {o.mass}, particle_radius: 0.005}}" for o in scene.objects)
+    mu = scene.friction
+    (out / "config.yaml").write_text(f"""pegs:
+  ros__parameters:
+    physics:
+      ground: {{static_friction: {mu}, kinetic_friction: {mu}}}
+      collisions: {{static_friction: {mu}, kinetic_friction: {mu}}}
+    robot:
+      urdf: {urdf}
+    scene:
+      rgbd_objects:
+{objects}
+      ground_from_depth: true
+      table: {{min: [0.2, -0.3], max: [0.8, 0.3], fit_steps: 60, lr: 0.05, drop: 0.0}}
+""")
