@@ -30,7 +30,8 @@ enum Command {
         #[command(subcommand)]
         what: ScenarioCommand,
     },
-    /// Run predict/correct on a recording (MCAP) and write objects.csv and metrics.json.
+    /// Run predict/correct on a recording (an MCAP file or a rosbag2 directory with MCAP storage)
+    /// and write objects.csv and metrics.json.
     Replay(ReplayArgs),
     /// Find the physics the model misses: locate where open-loop predictions fail, name the
     /// effect that explains it with its parameter, rerun with it and compare. Writes

@@ -52,7 +52,7 @@ fn json(path: &Path) -> serde_json::Value {
 /// `pegs replay` of a recorded folder with its configuration; metrics.json.
 fn replay(folder: &Path, extra: &[&str]) -> serde_json::Value {
     let out = folder.join("out");
-    let bag = folder.join("bag/bag.mcap");
+    let bag = folder.join("bag");
     let config = folder.join("config.yaml");
     let mut args = vec![
         "replay",
@@ -155,7 +155,7 @@ fn predictions_during_a_push_follow_the_recorded_robot() {
         capture: true,
         ..Default::default()
     };
-    let bag = folder.join("bag/bag.mcap");
+    let bag = folder.join("bag");
     let metrics = pegs::replay::run(&bag, &config, &folder.join("traced"), opts).unwrap();
     let trace = metrics.trace.unwrap();
     let object = trace.base.shape_id("obj1").unwrap();

@@ -1,6 +1,7 @@
-//! Recordings: MCAP files in the rosbag2 profile with CDR-encoded ROS 2 messages. Writing is used
-//! by the scenario generator; reading streams messages in file order for replay and tolerates a
-//! truncated file (it yields what is intact and says where it stopped).
+//! Recordings: MCAP files in the rosbag2 profile with CDR-encoded ROS 2 messages, alone or in a
+//! rosbag2 directory (`metadata.yaml` and its MCAP storage files). Writing is used by the scenario
+//! generator; reading streams messages in file order for replay and tolerates a truncated file
+//! (it yields what is intact and says where it stopped).
 
 use crate::msgs::{
     self, CameraInfo, Header, Image, Quaternion, TfMessage, Time, Transform, TransformStamped,
@@ -214,9 +215,85 @@ pub struct RawMessage {
     pub data: Vec<u8>,
 }
 
-/// Every message of an MCAP file in file order. A damaged or truncated tail ends the list and is
-/// reported in the second value instead of failing the whole read.
+/// Every message of a recording in file order: an MCAP file, or a rosbag2 directory (its
+/// `metadata.yaml` and MCAP storage files, in the order it lists them). A damaged or truncated
+/// tail ends the list and is reported in the second value instead of failing the whole read.
 pub fn read_messages(path: &Path) -> Result<(Vec<RawMessage>, Option<String>)> {
+    if !path.is_dir() {
+        return read_mcap(path);
+    }
+    let mut out = Vec::new();
+    for file in bag_files(path)? {
+        let (messages, problem) = read_mcap(&file)?;
+        out.extend(messages);
+        if problem.is_some() {
+            return Ok((out, problem));
+        }
+    }
+    Ok((out, None))
+}
+
+/// The part of a rosbag2 `metadata.yaml` that says where the messages are.
+#[derive(serde::Deserialize)]
+struct BagMetadata {
+    rosbag2_bagfile_information: BagInformation,
+}
+
+#[derive(serde::Deserialize)]
+struct BagInformation {
+    storage_identifier: String,
+    relative_file_paths: Vec<String>,
+    #[serde(default)]
+    compression_format: String,
+}
+
+/// The storage files of the rosbag2 directory `dir`, in order; an error names what is missing
+/// or not supported.
+fn bag_files(dir: &Path) -> Result<Vec<std::path::PathBuf>> {
+    let meta_path = dir.join("metadata.yaml");
+    let text = std::fs::read_to_string(&meta_path).with_context(|| {
+        format!(
+            "{} is a directory without metadata.yaml: not a rosbag2 bag",
+            dir.display()
+        )
+    })?;
+    let meta: BagMetadata = serde_yaml_ng::from_str(&text)
+        .with_context(|| format!("cannot read {}", meta_path.display()))?;
+    let info = meta.rosbag2_bagfile_information;
+    if info.storage_identifier != "mcap" {
+        anyhow::bail!(
+            "{}: storage '{}' is not supported (only mcap)",
+            dir.display(),
+            info.storage_identifier
+        );
+    }
+    if !info.compression_format.is_empty() {
+        anyhow::bail!(
+            "{}: compressed bags ({}) are not supported",
+            dir.display(),
+            info.compression_format
+        );
+    }
+    let files: Vec<_> = info
+        .relative_file_paths
+        .iter()
+        .map(|f| dir.join(f))
+        .collect();
+    if files.is_empty() {
+        anyhow::bail!("{}: metadata.yaml lists no storage files", dir.display());
+    }
+    if let Some(missing) = files.iter().find(|f| !f.is_file()) {
+        anyhow::bail!(
+            "{}: metadata.yaml lists {}, which is missing",
+            dir.display(),
+            missing.display()
+        );
+    }
+    Ok(files)
+}
+
+/// Every message of one MCAP file, in file order (see `read_messages`).
+fn read_mcap(path: &Path) -> Result<(Vec<RawMessage>, Option<String>)> {
     let bytes =
         std::fs::read(path).with_context(|| format!("cannot read recording {}", path.display()))?;
     let mut out = Vec::new();
@@ -310,5 +387,64 @@ mod tests {
         std::fs::write(dir.join("junk.mcap"), b"not an mcap").unwrap();
         let (none, problem) = read_messages(&dir.join("junk.mcap")).unwrap();
         assert!(none.is_empty() && problem.is_some());
+    }
+
+    /// Joint states at `times` into the MCAP file `path`.
+    fn joint_file(path: &Path, times: std::ops::Range<usize>) {
+        let mut w = RecordingWriter::create(path).unwrap();
+        for k in times {
+            let t = Time::from_seconds(k as f64 * 0.01);
+            let js = JointState {
+                header: Header {
+                    stamp: t,
+                    frame_id: String::new(),
+                },
+                name: vec!["j".into()],
+                position: vec![k as f64],
+                ..Default::default()
+            };
+            w.write(JOINT_STATES, msgs::schema::joint_state(), t, &js)
+                .unwrap();
+        }
+        w.finish().unwrap();
+    }
+
+    /// A rosbag2 directory split into two storage files is read as one recording, in the order
+    /// its metadata lists them; other storages, missing files and directories that are not bags
+    /// are refused, naming what is wrong.
+    #[test]
+    fn a_rosbag2_directory_reads_its_storage_files_in_order() {
+        let dir = std::env::temp_dir().join(format!("pegs-bag-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        joint_file(&dir.join("bag_0.mcap"), 0..50);
+        joint_file(&dir.join("bag_1.mcap"), 50..80);
+        let metadata = |storage: &str, files: &[&str]| {
+            let list: String = files.iter().map(|f| format!("  - {f}\n")).collect();
+            let text = format!(
+                "rosbag2_bagfile_information:\n  version: 9\n  storage_identifier: {storage}\n  \
+                 compression_format: ''\n  relative_file_paths:\n{list}"
+            );
+            std::fs::write(dir.join("metadata.yaml"), text).unwrap();
+        };
+        metadata("mcap", &["bag_0.mcap", "bag_1.mcap"]);
+        let (read, problem) = read_messages(&dir).unwrap();
+        assert!(problem.is_none());
+        let positions: Vec<f64> = read
+            .iter()
+            .map(|m| msgs::from_cdr::<JointState>(&m.data).unwrap().position[0])
+            .collect();
+        assert_eq!(positions, (0..80).map(|k| k as f64).collect::<Vec<_>>());
+        let refused = |why: &str| {
+            let e = read_messages(&dir).err().expect("refused");
+            let text = format!("{e:#}");
+            assert!(text.contains(why), "{text}");
+        };
+        metadata("sqlite3", &["bag_0.db3"]);
+        refused("storage 'sqlite3' is not supported");
+        metadata("mcap", &["bag_0.mcap", "bag_2.mcap"]);
+        refused("bag_2.mcap, which is missing");
+        std::fs::remove_file(dir.join("metadata.yaml")).unwrap();
+        refused("without metadata.yaml");
     }
 }

@@ -39,7 +39,7 @@ def effect(truth: dict) -> str:
 def row(folder: Path, pegs: str) -> tuple[list[str], list[float], float]:
     out = folder / "out"
     clock = time.time()
-    result = subprocess.run([pegs, "replay", str(folder / "bag" / "bag.mcap"), "--config", str(folder / "config.yaml"),
+    result = subprocess.run([pegs, "replay", str(folder / "bag"), "--config", str(folder / "config.yaml"),
                              "--out", str(out)], capture_output=True, text=True)
     seconds = time.time() - clock
     truth = json.loads((folder / "truth.json").read_text())

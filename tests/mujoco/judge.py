@@ -1,0 +1,104 @@
+"""Diagnose recordings of the third-party set with `pegs diagnose` and judge each report against
+the hidden truth (truth.json), as `pegs scenario concealed` does for pegs's own scenarios.
+
+    python judge.py --pegs target/release/pegs --seeds 100-102 --out DIR [--kinds drag,tether]
+
+A verdict passes when the named family is the concealed one on the right object (a mass error may
+be named on either object of the collision, as the ratio between them), its parameter is within
+25 % of the truth, and on a control nothing is named. Writes DIR/diagnosis.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+import generate  # noqa: E402
+import scenes  # noqa: E402
+
+
+def named_effects(report: dict) -> dict[str, tuple[str, float | None]]:
+    """Object -> (named family, its first parameter)."""
+    out = {}
+    for o in report.get("objects", []):
+        params = o.get("parameters") or []
+        out[o["object"]] = (o["effect"], params[0]["value"] if params else None)
+    return out
+
+
+def judge(truth: dict, report: dict) -> dict:
+    named = named_effects(report)
+    family, obj, value = truth["family"], truth["object"], truth.get("parameter")
+    found = {k: v for k, v in named.items() if v[0] != "none"}
+    if family == "none":
+        return {"named": ", ".join(f"{k}: {v[0]}" for k, v in found.items()) or "none", "estimate": None,
+                "error": None, "passed": not found}
+    estimate = None
+    if family == "mass_error":
+        # Either side of the collision, as a ratio between the two.
+        other = truth["ratio_to"]
+        if named.get(obj, ("none",))[0] == family and named[obj][1]:
+            estimate = named[obj][1]
+        elif named.get(other, ("none",))[0] == family and named[other][1]:
+            estimate = 1.0 / named[other][1]
+    elif named.get(obj, ("none",))[0] == family and named[obj][1] is not None:
+        estimate = abs(named[obj][1])
+    error = abs(estimate - value) / abs(value) if estimate is not None and value else None
+    return {"named": ", ".join(f"{k}: {v[0]}" for k, v in found.items()) or "none", "estimate": estimate,
+            "error": error, "passed": error is not None and error <= 0.25}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--pegs", required=True)
+    ap.add_argument("--seeds", default="100-102")
+    ap.add_argument("--kinds", default=",".join(scenes.KINDS))
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--width", type=int, default=320)
+    ap.add_argument("--height", type=int, default=180)
+    a = ap.parse_args()
+    lines = ["| recording | shape | concealed | named | estimate (truth) | error | 1 s open loop before -> after (mm) | pass | minutes |",
+             "| --- | --- | --- | --- | --- | ---: | --- | --- | ---: |"]
+    passed = total = 0
+    for kind in a.kinds.split(","):
+        for seed in generate.seeds(a.seeds):
+            folder = a.out / f"{kind}_{seed}"
+            if not (folder / "truth.json").is_file():
+                generate.record(kind, seed, a.out, a.width, a.height, None, 0.0)
+            truth = json.loads((folder / "truth.json").read_text())
+            clock = time.time()
+            diag = folder / "diagnosis"
+            result = subprocess.run([a.pegs, "diagnose", str(folder / "bag"), "--config",
+                                     str(folder / "config.yaml"), "--out", str(diag)], capture_output=True, text=True)
+            minutes = (time.time() - clock) / 60
+            if result.returncode != 0:
+                last = (result.stderr.strip().splitlines() or ["?"])[-1]
+                lines.append(f"| {folder.name} | {truth['shape']} | {truth['family']} | failed: {last} | | | | no | {minutes:.1f} |")
+                total += 1
+                continue
+            report = json.loads((diag / "report.json").read_text())
+            v = judge(truth, report)
+            total += 1
+            passed += v["passed"]
+            value = truth.get("parameter")
+            est = f"{v['estimate']:.3g} ({value:.3g})" if v["estimate"] is not None and value is not None else "-"
+            err = f"{100 * v['error']:.0f} %" if v["error"] is not None else "-"
+            obj = next((o for o in report["objects"] if o["object"] == truth["object"]), report["objects"][0])
+            loop = f"{obj['before']['open_loop_error_mm']:.1f} -> {obj['after']['open_loop_error_mm']:.1f}"
+            lines.append(f"| {folder.name} | {truth['shape']} | {truth['family']} | {v['named']} | {est} | {err} | {loop} | "
+                         f"{'yes' if v['passed'] else 'no'} | {minutes:.1f} |")
+            print(lines[-1], flush=True)
+    text = f"Diagnoses passed: {passed} of {total}.\n\n" + "\n".join(lines) + "\n"
+    a.out.mkdir(parents=True, exist_ok=True)
+    (a.out / "diagnosis.md").write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
