@@ -468,32 +468,38 @@ pub fn decode_image(img: &Image, camera: &Camera) -> Result<Vec<Vec3>, String> {
     Ok(out)
 }
 
-/// Metres from a 32FC1 depth image of the camera's size (non-finite or negative values become 0,
-/// unknown).
-pub fn decode_depth(img: &Image, camera: &Camera) -> Result<Vec<f32>, String> {
+/// Metres from a depth image of the camera's size: 32FC1 in metres, or 16UC1 in units of `unit`
+/// metres (0 and non-finite or negative values become 0, unknown).
+pub fn decode_depth(img: &Image, camera: &Camera, unit: f32) -> Result<Vec<f32>, String> {
     let (w, h) = (camera.width as usize, camera.height as usize);
+    let bytes = match img.encoding.as_str() {
+        "32FC1" => 4,
+        "16UC1" => 2,
+        _ => 0,
+    };
     if img.width != camera.width
         || img.height != camera.height
-        || img.encoding != "32FC1"
+        || bytes == 0
         || img.is_bigendian != 0
-        || (img.step as usize) < 4 * w
+        || (img.step as usize) < bytes * w
         || img.data.len() < img.step as usize * h
     {
         return Err(format!(
-            "depth must be little-endian 32FC1 of {w}x{h}, got {} {}x{}",
+            "depth must be little-endian 32FC1 (m) or 16UC1 (units of node.depth_unit) of {w}x{h}, \
+             got {} {}x{}",
             img.encoding, img.width, img.height
         ));
     }
     let mut out = Vec::with_capacity(w * h);
     for y in 0..h {
+        let row = &img.data[y * img.step as usize..];
         for x in 0..w {
-            let at = y * img.step as usize + 4 * x;
-            let d = f32::from_le_bytes([
-                img.data[at],
-                img.data[at + 1],
-                img.data[at + 2],
-                img.data[at + 3],
-            ]);
+            let at = bytes * x;
+            let d = if bytes == 4 {
+                f32::from_le_bytes([row[at], row[at + 1], row[at + 2], row[at + 3]])
+            } else {
+                u16::from_le_bytes([row[at], row[at + 1]]) as f32 * unit
+            };
             out.push(if d.is_finite() && d > 0.0 { d } else { 0.0 });
         }
     }
@@ -624,6 +630,47 @@ mod tests {
             )
             .unwrap_err()
             .contains("too short")
+        );
+    }
+
+    /// Depth as rigs record it: 32FC1 metres, or 16UC1 in the configured unit (realsense2_camera:
+    /// millimetres), rows padded or not; 0 and NaN are unknown; other encodings are refused by
+    /// name.
+    #[test]
+    fn depth_decodes_from_metres_or_millimetres_and_other_encodings_are_named() {
+        let cam = camera();
+        let metres = Image {
+            encoding: "32FC1".into(),
+            step: 8,
+            data: [0.5f32, f32::NAN]
+                .iter()
+                .flat_map(|d| d.to_le_bytes())
+                .collect(),
+            ..image(0.0)
+        };
+        assert_eq!(decode_depth(&metres, &cam, 0.001).unwrap(), vec![0.5, 0.0]);
+        // Millimetres, each row padded to 6 bytes.
+        let millimetres = Image {
+            encoding: "16UC1".into(),
+            step: 6,
+            data: [1234u16, 0, 0]
+                .iter()
+                .flat_map(|d| d.to_le_bytes())
+                .collect(),
+            ..image(0.0)
+        };
+        let d = decode_depth(&millimetres, &cam, 0.001).unwrap();
+        assert!((d[0] - 1.234).abs() < 1e-6 && d[1] == 0.0, "{d:?}");
+        let d = decode_depth(&millimetres, &cam, 0.0001).unwrap();
+        assert!((d[0] - 0.1234).abs() < 1e-6, "another unit: {d:?}");
+        let mono16 = Image {
+            encoding: "mono16".into(),
+            ..millimetres
+        };
+        assert!(
+            decode_depth(&mono16, &cam, 0.001)
+                .unwrap_err()
+                .contains("got mono16")
         );
     }
 

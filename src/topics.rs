@@ -14,9 +14,12 @@ pub struct NodeConfig {
     pub cameras: Vec<String>,
     pub image_topic: String,
     pub camera_info_topic: String,
-    /// Depth (32FC1, m) and instance masks (mono8): read once, to initialise a scene from RGB-D.
+    /// Depth (32FC1 in metres, or 16UC1 in `depth_unit`s) and instance masks (mono8): read once,
+    /// to initialise a scene from RGB-D.
     pub depth_topic: String,
     pub mask_topic: String,
+    /// Metres per unit of 16UC1 depth (realsense2_camera publishes millimetres: 0.001).
+    pub depth_unit: f32,
     /// Each camera's optical frame (z forward, y down), looked up on /tf_static.
     pub optical_frame: String,
     pub joint_states_topic: String,
@@ -38,6 +41,7 @@ impl Default for NodeConfig {
             camera_info_topic: "/{camera}/color/camera_info".into(),
             depth_topic: "/{camera}/depth/image_raw".into(),
             mask_topic: "/{camera}/mask/image_raw".into(),
+            depth_unit: 0.001,
             optical_frame: "{camera}_color_optical_frame".into(),
             joint_states_topic: "/joint_states".into(),
             world_frame: "world".into(),
@@ -61,6 +65,9 @@ impl NodeConfig {
             if !t.contains("{camera}") {
                 bail!("node.{name} must contain {{camera}}, got '{t}'");
             }
+        }
+        if !(self.depth_unit.is_finite() && self.depth_unit > 0.0) {
+            bail!("node.depth_unit must be > 0 m, got {}", self.depth_unit);
         }
         if !(self.diagnostics_period.is_finite() && self.diagnostics_period > 0.0) {
             bail!(

@@ -31,8 +31,8 @@ fn run(command: &mut Command) -> String {
 }
 
 /// Record scene `kind` of `seed` with MuJoCo at 320x180, in the recording shape drawn for the
-/// seed or `shape`; its folder.
-fn record(kind: &str, seed: u32, shape: Option<&str>) -> PathBuf {
+/// seed or `shape`, with extra generator arguments; its folder.
+fn record(kind: &str, seed: u32, shape: Option<&str>, extra: &[&str]) -> PathBuf {
     let out = std::env::temp_dir().join(format!("pegs-mujoco-{}", std::process::id()));
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/mujoco/generate.py");
     let seed = seed.to_string();
@@ -41,6 +41,7 @@ fn record(kind: &str, seed: u32, shape: Option<&str>) -> PathBuf {
     if let Some(shape) = shape {
         args.extend(["--shape", shape]);
     }
+    args.extend_from_slice(extra);
     run(Command::new(python()).args(&args));
     out.join(format!("{kind}_{seed}"))
 }
@@ -95,11 +96,12 @@ fn error_mm(metrics: &serde_json::Value, object: &str, stat: &str) -> f64 {
 }
 
 /// An object at rest in another engine's recording: the world built from its first RGB-D frames
-/// and masks stays on it (no drift from shading pegs's renderer does not model).
+/// (16UC1 millimetres, as a RealSense records depth) and masks stays on it (no drift from shading
+/// pegs's renderer does not model).
 #[test]
 #[ignore = "slow: full tier (tests/run_all.sh)"]
 fn an_object_at_rest_in_another_engines_recording_stays_tracked() {
-    let folder = record("control_still", 11, None);
+    let folder = record("control_still", 11, None, &["--depth", "16UC1"]);
     let m = replay(&folder, &[]);
     let (mean, last) = (
         error_mm(&m, "obj1", "mean_mm"),
@@ -107,6 +109,11 @@ fn an_object_at_rest_in_another_engines_recording_stays_tracked() {
     );
     println!("still: mean {mean:.2} mm, final {last:.2} mm");
     assert!(truth_travel(&folder, "obj1") < 0.002, "the object rests");
+    let warnings = m["warnings"].as_array().unwrap();
+    assert!(
+        warnings.is_empty(),
+        "every camera's depth used: {warnings:?}"
+    );
     assert!(mean < 2.0 && last < 3.0, "mean {mean} mm, final {last} mm");
 }
 
@@ -116,7 +123,7 @@ fn an_object_at_rest_in_another_engines_recording_stays_tracked() {
 #[test]
 #[ignore = "slow: full tier (tests/run_all.sh)"]
 fn an_object_pushed_in_another_engines_recording_is_tracked_through_the_push() {
-    let folder = record("control_pushed", 12, None);
+    let folder = record("control_pushed", 12, None, &[]);
     let travel = truth_travel(&folder, "obj1");
     let m = replay(&folder, &["--compare"]);
     let mean = error_mm(&m, "obj1", "mean_mm");
@@ -148,7 +155,7 @@ fn push_span(folder: &Path) -> (f64, f64) {
 #[test]
 #[ignore = "slow: full tier (tests/run_all.sh)"]
 fn predictions_during_a_push_follow_the_recorded_robot() {
-    let folder = record("control_pushed", 13, Some("long_push"));
+    let folder = record("control_pushed", 13, Some("long_push"), &[]);
     let config = pegs::config::Config::load(&folder.join("config.yaml")).unwrap();
     let opts = pegs::replay::ReplayOptions {
         progress: false,

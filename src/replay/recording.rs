@@ -47,6 +47,12 @@ impl Streams {
             warnings.push(p);
         }
         let mut sorted = Sorted::default();
+        // Every image topic the recording has, for the error when no camera is usable.
+        let image_topics: std::collections::BTreeSet<String> = messages
+            .iter()
+            .filter(|m| m.schema.ends_with("/Image") || m.schema.ends_with("/CompressedImage"))
+            .map(|m| format!("{} ({})", m.topic, m.schema))
+            .collect();
         for m in messages {
             if let Err(e) = sorted.add(&m, warnings) {
                 warnings.push(format!("skipped a message on {}: {e:#}", m.topic));
@@ -58,9 +64,19 @@ impl Streams {
             streams.images.truncate(n);
         }
         if streams.cameras.is_empty() {
+            let found: Vec<&str> = image_topics.iter().map(String::as_str).collect();
             bail!(
-                "{} has no usable camera (needs images, CameraInfo and /tf_static)",
-                path.display()
+                "{} has no usable camera: looked for {{camera}} in /{{camera}}/color/image_raw \
+                 with /{{camera}}/color/camera_info and a /tf_static transform from '{}' to \
+                 {}; the recording's image topics: {}",
+                path.display(),
+                record::WORLD_FRAME,
+                record::optical_frame("{camera}"),
+                if found.is_empty() {
+                    "none".to_string()
+                } else {
+                    found.join(", ")
+                }
             );
         }
         Ok(streams)
@@ -74,6 +90,45 @@ impl Streams {
             first.fold(f64::INFINITY, f64::min),
             last.fold(f64::NEG_INFINITY, f64::max),
         )
+    }
+}
+
+/// Images stamped further than this from the recording's median image stamp are refused: a zero
+/// or garbage stamp in a bag of wall-clock stamps would otherwise stretch the replay over decades.
+pub const MAX_STAMP_SPREAD_S: f64 = 24.0 * 3600.0;
+
+/// Refuse images and joint states whose stamps lie more than `MAX_STAMP_SPREAD_S` from the median
+/// image stamp, saying how many and where.
+fn drop_stray_stamps(streams: &mut Streams, warnings: &mut Vec<String>) {
+    let mut stamps: Vec<f64> = streams.images.iter().flatten().map(|i| i.0).collect();
+    if stamps.is_empty() {
+        return;
+    }
+    stamps.sort_by(f64::total_cmp);
+    let median = stamps[stamps.len() / 2];
+    // NaN stamps count as stray too.
+    let stray = |t: f64| {
+        (t - median).abs().partial_cmp(&MAX_STAMP_SPREAD_S) != Some(std::cmp::Ordering::Less)
+    };
+    for ((name, _), images) in streams.cameras.iter().zip(&mut streams.images) {
+        let before = images.len();
+        let first_stray = images.iter().map(|i| i.0).find(|t| stray(*t));
+        images.retain(|i| !stray(i.0));
+        if let Some(t) = first_stray {
+            warnings.push(format!(
+                "camera {name}: {} image(s) refused, stamped far from the recording's other \
+                 images (e.g. {t:.3} s against {median:.3} s)",
+                before - images.len()
+            ));
+        }
+    }
+    let before = streams.joint_states.len();
+    streams.joint_states.retain(|j| !stray(j.0));
+    if streams.joint_states.len() < before {
+        warnings.push(format!(
+            "{} joint state(s) refused, stamped far from the recording's images ({median:.3} s)",
+            before - streams.joint_states.len()
+        ));
     }
 }
 
@@ -146,6 +201,7 @@ impl Sorted {
             out.images.push(images);
         }
         out.joint_states.sort_by(|a, b| a.0.total_cmp(&b.0));
+        drop_stray_stamps(&mut out, warnings);
         out
     }
 
@@ -170,5 +226,78 @@ impl Sorted {
             cy,
             *pose,
         ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::msgs::{Time, schema};
+    use glam::Vec3;
+
+    /// A camera that stamped one image 0 in a recording of wall-clock stamps: that image is
+    /// refused with a warning, and the recording spans its real 1 s, not 55 years.
+    #[test]
+    fn a_stray_stamp_is_refused_not_replayed_for_decades() {
+        let dir = std::env::temp_dir().join(format!("pegs-stray-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("epoch.mcap");
+        let mut w = record::RecordingWriter::create(&path).unwrap();
+        let frame = record::optical_frame("cam0");
+        let camera = Camera::look_at(2, 1, 2.0, Vec3::new(1.0, 0.0, 1.0), Vec3::ZERO);
+        let cameras = [("cam0".to_string(), camera)];
+        let epoch = 1.7e9;
+        let tf = record::optical_frames_tf(&cameras);
+        let at = |t: f64| Time::from_seconds(t);
+        w.write(record::TF_STATIC, schema::tf_message(), at(epoch), &tf)
+            .unwrap();
+        let info = record::camera_info(&camera, epoch, &frame);
+        w.write(
+            &record::info_topic("cam0"),
+            schema::camera_info(),
+            at(epoch),
+            &info,
+        )
+        .unwrap();
+        for t in [epoch, epoch + 0.5, 0.0, epoch + 1.0] {
+            let image = record::rgb8(2, 1, vec![0; 6], t, &frame);
+            w.write(&record::image_topic("cam0"), schema::image(), at(t), &image)
+                .unwrap();
+        }
+        w.finish().unwrap();
+        let mut warnings = Vec::new();
+        let streams = Streams::read(&path, None, &mut warnings).unwrap();
+        assert_eq!(streams.span(), (epoch, epoch + 1.0));
+        assert_eq!(streams.images[0].len(), 3);
+        assert!(
+            warnings.iter().any(|w| w.contains("1 image(s) refused")),
+            "{warnings:?}"
+        );
+    }
+
+    /// A recording whose images are on topics pegs does not look for (realsense2_camera's
+    /// default namespace) is refused with what was looked for and what the recording has.
+    #[test]
+    fn no_usable_camera_names_the_topics_looked_for_and_found() {
+        let dir = std::env::temp_dir().join(format!("pegs-streams-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("realsense.mcap");
+        let mut w = record::RecordingWriter::create(&path).unwrap();
+        let topic = "/camera/cam0/color/image_raw";
+        let image = record::rgb8(2, 1, vec![0; 6], 0.0, "cam0_color_optical_frame");
+        w.write(topic, schema::image(), Time::from_seconds(0.0), &image)
+            .unwrap();
+        w.finish().unwrap();
+        let e = Streams::read(&path, None, &mut Vec::new()).err().unwrap();
+        let text = format!("{e:#}");
+        for part in [
+            "no usable camera",
+            "/{camera}/color/image_raw",
+            "/{camera}/color/camera_info",
+            "{camera}_color_optical_frame",
+            "/camera/cam0/color/image_raw (sensor_msgs/msg/Image)",
+        ] {
+            assert!(text.contains(part), "'{part}' missing from: {text}");
+        }
     }
 }

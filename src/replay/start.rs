@@ -46,7 +46,10 @@ pub fn scene(
                 .warnings
                 .push(format!("camera {name}: {what} not used: {why}"))
         };
-        let depth = streams.depth[c].as_ref().map(|i| decode_depth(i, cam));
+        let unit = config.node.depth_unit;
+        let depth = streams.depth[c]
+            .as_ref()
+            .map(|i| decode_depth(i, cam, unit));
         depths.push(depth.and_then(|d| d.map_err(|why| unused("depth", why)).ok()));
         let mask = streams.masks[c].as_ref().map(|i| decode_labels(i, cam));
         labels.push(mask.and_then(|m| m.map_err(|why| unused("masks", why)).ok()));

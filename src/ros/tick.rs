@@ -223,7 +223,12 @@ fn build_scene(config: &Config, cameras: &[(String, Camera)], s: &Shared) -> Res
     }
     let depth: Vec<Option<Vec<f32>>> = cameras
         .iter()
-        .map(|(n, c)| s.first_depth.get(n).and_then(|i| decode_depth(i, c).ok()))
+        .map(|(n, c)| {
+            let unit = config.node.depth_unit;
+            s.first_depth
+                .get(n)
+                .and_then(|i| decode_depth(i, c, unit).ok())
+        })
         .collect();
     let labels: Vec<Option<Vec<u8>>> = cameras
         .iter()

@@ -33,7 +33,8 @@ def seeds(text: str) -> list[int]:
     return [int(s) for s in text.split(",")]
 
 
-def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str | None, stamp0: float) -> Path:
+def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str | None, stamp0: float,
+           depth: str = "32FC1") -> Path:
     scene = scenes.draw(kind, seed, shape)
     folder = out / f"{kind}_{seed}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -45,7 +46,7 @@ def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str 
         for f in bag.iterdir():
             f.unlink()
         bag.rmdir()
-    write.write_bag(bag, run, stamp0)
+    write.write_bag(bag, run, stamp0, depth)
     write.write_truth(folder, scene, run, stamp0)
     write.write_config(folder, scene, urdf)
     print(f"{folder.name}: {scene.shape}, {len(run.frames)} frames, truth {scene.truth.get('family')} "
@@ -63,12 +64,13 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=180)
     ap.add_argument("--stamp0", type=float, default=0.0, help="stamp of the first message, s")
+    ap.add_argument("--depth", choices=["32FC1", "16UC1"], default="32FC1", help="depth encoding (16UC1: mm)")
     a = ap.parse_args()
     kinds = scenes.KINDS if a.kind == "all" else [a.kind]
     chosen = seeds(a.seeds) if a.seeds else [a.seed if a.seed is not None else 0]
     for kind in kinds:
         for seed in chosen:
-            record(kind, seed, a.out, a.width, a.height, a.shape, a.stamp0)
+            record(kind, seed, a.out, a.width, a.height, a.shape, a.stamp0, a.depth)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """A simulated run (simulate.py) written as a rig would record it, with a third-party writer
 (PyPI `rosbags`): a rosbag2 directory with MCAP storage holding colour (rgb8), aligned depth
-(32FC1 metres), instance labels (mono8), CameraInfo, the optical frames on /tf_static and the
+(32FC1 metres, or 16UC1 millimetres as a RealSense records it), instance labels (mono8), CameraInfo, the optical frames on /tf_static and the
 arm's /joint_states; beside it the ground truth (`ground_truth.csv`, pegs's layout), the hidden
 truth (`truth.json`) and the configuration a user would write (`config.yaml`: cameras, objects as
 the user believes them, the robot). Owns the files only.
@@ -63,7 +63,15 @@ def camera_info(t: float, frame: str, c) -> object:
         roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
 
 
-def write_bag(path: Path, run: Run, stamp0: float) -> None:
+def depth_image(t: float, frame: str, depth: np.ndarray, encoding: str):
+    """Depth as 32FC1 metres, or as 16UC1 millimetres as realsense2_camera publishes it."""
+    if encoding == "16UC1":
+        mm = np.clip(np.round(depth * 1000.0), 0, 65535).astype("<u2")
+        return image(t, frame, mm, "16UC1", 2 * depth.shape[1])
+    return image(t, frame, depth.astype("<f4"), "32FC1", 4 * depth.shape[1])
+
+
+def write_bag(path: Path, run: Run, stamp0: float, depth_encoding: str = "32FC1") -> None:
     """The rosbag2 directory `path` (MCAP storage)."""
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
         def connect(topic, msgtype):
@@ -107,7 +115,7 @@ def write_bag(path: Path, run: Run, stamp0: float) -> None:
                 conns = per_camera[c.name]
                 put(conns["info"], t, camera_info(stamp0 + t, optical, c), "sensor_msgs/msg/CameraInfo")
                 put(conns["rgb"], t, image(stamp0 + t, optical, frame.rgb[i], "rgb8", 3 * c.width), "sensor_msgs/msg/Image")
-                put(conns["depth"], t, image(stamp0 + t, optical, frame.depth[i], "32FC1", 4 * c.width), "sensor_msgs/msg/Image")
+                put(conns["depth"], t, depth_image(stamp0 + t, optical, frame.depth[i], depth_encoding), "sensor_msgs/msg/Image")
                 put(conns["mask"], t, image(stamp0 + t, optical, frame.labels[i], "mono8", c.width), "sensor_msgs/msg/Image")
 
 
