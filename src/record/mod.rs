@@ -345,22 +345,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("pegs-rec-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("r.mcap");
-        let mut w = RecordingWriter::create(&path).unwrap();
-        for k in 0..200 {
-            let t = Time::from_seconds(k as f64 * 0.01);
-            let js = JointState {
-                header: Header {
-                    stamp: t,
-                    frame_id: String::new(),
-                },
-                name: vec!["j".into()],
-                position: vec![k as f64],
-                ..Default::default()
-            };
-            w.write(JOINT_STATES, msgs::schema::joint_state(), t, &js)
-                .unwrap();
-        }
-        w.finish().unwrap();
+        joint_file(&path, 0..200);
         let (msgs_read, problem) = read_messages(&path).unwrap();
         assert!(problem.is_none());
         assert_eq!(msgs_read.len(), 200);
@@ -389,7 +374,7 @@ mod tests {
         assert!(none.is_empty() && problem.is_some());
     }
 
-    /// Joint states at `times` into the MCAP file `path`.
+    /// Joint states k (position k, stamp k / 100 s) for k in `times`, into the MCAP file `path`.
     fn joint_file(path: &Path, times: std::ops::Range<usize>) {
         let mut w = RecordingWriter::create(path).unwrap();
         for k in times {
