@@ -534,10 +534,19 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
             );
         }
         if o.effect == "none" {
-            println!(
-                "{}: no significant missing physics in the effect library",
-                o.object
-            );
+            use pegs::diagnose::report::Verdict;
+            let why = match o.verdict {
+                Verdict::NotEnoughEvidence => format!(
+                    "not enough evidence ({} windows of free motion to fit on, {} to judge on)",
+                    o.train_windows, o.heldout_windows
+                ),
+                Verdict::ExplainedByAnother => format!(
+                    "explained by {}",
+                    o.explained_by.as_deref().unwrap_or("another object")
+                ),
+                _ => "no significant missing physics in the effect library".to_string(),
+            };
+            println!("{}: {why}", o.object);
             continue;
         }
         let params: Vec<String> = o

@@ -28,10 +28,41 @@ pub struct Parameter {
     pub unit: String,
 }
 
+/// What the diagnosis concluded for one object, given how much evidence it had.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Verdict {
+    /// An effect of its own is named (`ObjectReport::effect`).
+    Named,
+    /// Its mismatches are explained by an effect named on another object.
+    ExplainedByAnother,
+    /// Enough windows to fit and to judge on, and no candidate passed.
+    NoMissingPhysics,
+    /// Too few windows of free motion to fit or to judge on: nothing can be said either way.
+    NotEnoughEvidence,
+}
+
+/// Fewer windows than this to fit on, or to judge on, is not enough evidence to say "no missing
+/// physics".
+pub const MIN_WINDOWS: usize = 3;
+
+impl Verdict {
+    pub fn of(named: bool, explained_by_another: bool, train: usize, heldout: usize) -> Self {
+        match () {
+            _ if named => Verdict::Named,
+            _ if explained_by_another => Verdict::ExplainedByAnother,
+            _ if train < MIN_WINDOWS || heldout < MIN_WINDOWS => Verdict::NotEnoughEvidence,
+            _ => Verdict::NoMissingPhysics,
+        }
+    }
+}
+
 /// The diagnosis of one object.
 #[derive(Clone, Debug, Serialize)]
 pub struct ObjectReport {
     pub object: String,
+    /// What was concluded, on how much evidence (`train_windows`, `heldout_windows`).
+    pub verdict: Verdict,
     pub mismatch: Vec<Mismatch>,
     /// Windows where predictions missed but no candidate effect explains it (contact transients,
     /// tracking noise): listed, not counted as missing physics.
@@ -194,13 +225,15 @@ fn driven_section(md: &mut String, o: &ObjectReport) {
 
 /// The named effect and its parameters, or why none is.
 fn name_section(md: &mut String, o: &ObjectReport) {
-    if o.effect == "none"
+    if o.verdict == Verdict::ExplainedByAnother
         && let Some(by) = &o.explained_by
     {
         let _ = writeln!(
             md,
             "**Name.** No missing physics of its own: its mismatches are explained by {by}.\n"
         );
+    } else if o.verdict == Verdict::NotEnoughEvidence {
+        not_enough_evidence(md, o);
     } else if o.effect == "none" {
         let _ = writeln!(
             md,
@@ -245,6 +278,39 @@ fn name_section(md: &mut String, o: &ObjectReport) {
             );
         }
     }
+}
+
+/// Why nothing can be said, the leading candidate, and the motion that would settle it.
+fn not_enough_evidence(md: &mut String, o: &ObjectReport) {
+    let _ = write!(
+        md,
+        "**Name.** Not enough evidence: {} window(s) of free motion to fit on and {} to judge on (at least {MIN_WINDOWS} of each are needed; windows where the robot touches {} are left out). ",
+        o.train_windows, o.heldout_windows, o.object
+    );
+    let leading = o
+        .candidates
+        .iter()
+        .filter(|f| f.train_gain().is_finite())
+        .max_by(|a, b| a.train_gain().total_cmp(&b.train_gain()));
+    match leading {
+        Some(f) if o.train_windows > 0 => {
+            let _ = write!(
+                md,
+                "The leading candidate is {} ({} = {:.4} {}), cutting the fitted windows' error by {:.0} %. ",
+                f.effect,
+                f.parameter,
+                f.value,
+                f.unit,
+                100.0 * f.train_gain()
+            );
+        }
+        _ => md.push_str("No candidate could be fitted. "),
+    }
+    let _ = writeln!(
+        md,
+        "What would settle it: {} moving without the robot touching it (sliding after a strike, colliding, coming to rest) both before and after {:.2} s.\n",
+        o.object, o.heldout_from
+    );
 }
 
 /// Every candidate family's fit, and the residual regression.
@@ -309,4 +375,20 @@ fn show_section(md: &mut String, o: &ObjectReport) {
         "\n![residual over time]({0}_residual.png)\n![residual vs feature]({0}_feature.png)\n![paths]({0}_paths.png)\n",
         o.object
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// "No missing physics" is a finding that needs windows to fit and to judge on; without them
+    /// the verdict says there is not enough evidence, whatever was (not) named.
+    #[test]
+    fn no_missing_physics_needs_evidence() {
+        assert_eq!(Verdict::of(false, false, 12, 5), Verdict::NoMissingPhysics);
+        assert_eq!(Verdict::of(false, false, 12, 0), Verdict::NotEnoughEvidence);
+        assert_eq!(Verdict::of(false, false, 2, 9), Verdict::NotEnoughEvidence);
+        assert_eq!(Verdict::of(true, false, 12, 5), Verdict::Named);
+        assert_eq!(Verdict::of(false, true, 0, 0), Verdict::ExplainedByAnother);
+    }
 }

@@ -23,6 +23,11 @@ import generate  # noqa: E402
 import scenes  # noqa: E402
 
 
+def verdicts(report: dict) -> str:
+    """Each object's verdict when nothing is named (no missing physics, or not enough evidence)."""
+    return ", ".join(f"{o['object']}: {o['verdict'].replace('_', ' ')}" for o in report.get("objects", []))
+
+
 def named_effects(report: dict) -> dict[str, tuple[str, float | None]]:
     """Object -> (named family, its first parameter)."""
     out = {}
@@ -37,8 +42,8 @@ def judge(truth: dict, report: dict) -> dict:
     family, obj, value = truth["family"], truth["object"], truth.get("parameter")
     found = {k: v for k, v in named.items() if v[0] != "none"}
     if family == "none":
-        return {"named": ", ".join(f"{k}: {v[0]}" for k, v in found.items()) or "none", "estimate": None,
-                "error": None, "passed": not found}
+        return {"named": ", ".join(f"{k}: {v[0]}" for k, v in found.items()) or verdicts(report),
+                "estimate": None, "error": None, "passed": not found}
     estimate = None
     if family == "mass_error":
         # Either side of the collision, as a ratio between the two.
@@ -50,8 +55,8 @@ def judge(truth: dict, report: dict) -> dict:
     elif named.get(obj, ("none",))[0] == family and named[obj][1] is not None:
         estimate = abs(named[obj][1])
     error = abs(estimate - value) / abs(value) if estimate is not None and value else None
-    return {"named": ", ".join(f"{k}: {v[0]}" for k, v in found.items()) or "none", "estimate": estimate,
-            "error": error, "passed": error is not None and error <= 0.25}
+    return {"named": ", ".join(f"{k}: {v[0]}" for k, v in found.items()) or verdicts(report),
+            "estimate": estimate, "error": error, "passed": error is not None and error <= 0.25}
 
 
 def main() -> None:

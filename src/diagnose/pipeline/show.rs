@@ -7,7 +7,7 @@ use super::{Plan, traced_replay};
 use crate::config::{Config, ModelFile};
 use crate::diagnose::candidates;
 use crate::diagnose::plots;
-use crate::diagnose::report::{ObjectReport, Outcome, Parameter, Report};
+use crate::diagnose::report::{ObjectReport, Outcome, Parameter, Report, Verdict};
 use crate::diagnose::select::{self, SelectOptions};
 use crate::replay::Metrics;
 use crate::trace::{Prediction, Sample, Trace};
@@ -190,8 +190,15 @@ fn object_report(
             residual_explained_fraction = single.found.first().map(|x| x.explained_fraction);
         }
     }
+    let verdict = Verdict::of(
+        study.chosen.is_some(),
+        study.explained_by.is_some(),
+        study.train.len(),
+        study.heldout.len(),
+    );
     ObjectReport {
         object: study.name,
+        verdict,
         locate_threshold_mm: study.located.threshold * 1e3,
         // Deviations no effect explains are listed apart: they are not missing physics.
         unexplained: study
