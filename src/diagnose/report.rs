@@ -48,11 +48,14 @@ pub const MIN_WINDOWS: usize = 3;
 
 impl Verdict {
     pub fn of(named: bool, explained_by_another: bool, train: usize, heldout: usize) -> Self {
-        match () {
-            _ if named => Verdict::Named,
-            _ if explained_by_another => Verdict::ExplainedByAnother,
-            _ if train < MIN_WINDOWS || heldout < MIN_WINDOWS => Verdict::NotEnoughEvidence,
-            _ => Verdict::NoMissingPhysics,
+        if named {
+            Verdict::Named
+        } else if explained_by_another {
+            Verdict::ExplainedByAnother
+        } else if train < MIN_WINDOWS || heldout < MIN_WINDOWS {
+            Verdict::NotEnoughEvidence
+        } else {
+            Verdict::NoMissingPhysics
         }
     }
 }

@@ -312,23 +312,12 @@ fn import_camera(
         if t < from || !t.is_finite() || (max_rate > 0.0 && t - last_kept < 1.0 / max_rate - 1e-3) {
             continue;
         }
-        let stamp = Time::from_seconds(t);
         if kept == 0 {
             let info = record::camera_info(&c.camera, t, &frame_id);
-            rec.write(
-                &record::info_topic(&name),
-                msgs::schema::camera_info(),
-                stamp,
-                &info,
-            )?;
+            rec.camera_info(&record::info_topic(&name), &info)?;
         }
         let image = record::rgb8(c.camera.width, c.camera.height, frame, t, &frame_id);
-        rec.write(
-            &record::image_topic(&name),
-            msgs::schema::image(),
-            stamp,
-            &image,
-        )?;
+        rec.image(&record::image_topic(&name), &image)?;
         last_kept = t;
         kept += 1;
         report.first_stamp = report.first_stamp.min(t);

@@ -166,6 +166,16 @@ impl RecordingWriter {
         self.write_raw(topic, schema, stamp.seconds(), &msgs::to_cdr(msg)?)
     }
 
+    /// Write an image on `topic` at its header's stamp.
+    pub fn image(&mut self, topic: &str, image: &Image) -> Result<()> {
+        self.write(topic, msgs::schema::image(), image.header.stamp, image)
+    }
+
+    /// Write a CameraInfo on `topic` at its header's stamp.
+    pub fn camera_info(&mut self, topic: &str, info: &CameraInfo) -> Result<()> {
+        self.write(topic, msgs::schema::camera_info(), info.header.stamp, info)
+    }
+
     /// Write an already encoded CDR payload (e.g. copied from another recording) at `time` (s).
     pub fn write_raw(
         &mut self,

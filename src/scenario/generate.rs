@@ -115,22 +115,12 @@ fn write_depth_and_masks(
 ) -> Result<()> {
     let observed = observe_depth_and_labels(world, cams, objects);
     for (i, (c, (depth, labels))) in cams.iter().zip(observed).enumerate() {
-        let (name, stamp) = (camera_name(i), Time::from_seconds(t));
+        let name = camera_name(i);
         let frame = record::optical_frame(&name);
         let depth = record::depth32(c.width, c.height, &depth, t, &frame);
-        rec.write(
-            &record::depth_topic(&name),
-            msgs::schema::image(),
-            stamp,
-            &depth,
-        )?;
+        rec.image(&record::depth_topic(&name), &depth)?;
         let mask = record::mono8(c.width, c.height, labels, t, &frame);
-        rec.write(
-            &record::mask_topic(&name),
-            msgs::schema::image(),
-            stamp,
-            &mask,
-        )?;
+        rec.image(&record::mask_topic(&name), &mask)?;
     }
     Ok(())
 }
@@ -143,7 +133,7 @@ fn write_images(
     t: f64,
 ) -> Result<()> {
     for (i, (c, img)) in cams.iter().zip(images).enumerate() {
-        let (name, stamp) = (camera_name(i), Time::from_seconds(t));
+        let name = camera_name(i);
         let frame = record::optical_frame(&name);
         let data = img
             .iter()
@@ -153,19 +143,9 @@ fn write_images(
             })
             .collect();
         let info = record::camera_info(c, t, &frame);
-        rec.write(
-            &record::info_topic(&name),
-            msgs::schema::camera_info(),
-            stamp,
-            &info,
-        )?;
+        rec.camera_info(&record::info_topic(&name), &info)?;
         let image = record::rgb8(c.width, c.height, data, t, &frame);
-        rec.write(
-            &record::image_topic(&name),
-            msgs::schema::image(),
-            stamp,
-            &image,
-        )?;
+        rec.image(&record::image_topic(&name), &image)?;
     }
     Ok(())
 }
