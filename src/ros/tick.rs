@@ -221,18 +221,20 @@ fn build_scene(config: &Config, cameras: &[(String, Camera)], s: &Shared) -> Res
             .map_err(|why| anyhow!("camera {name}: first image unusable: {why}"))?;
         images.push(decoded);
     }
+    let unit = config.node.depth_unit;
     let depth: Vec<Option<Vec<f32>>> = cameras
         .iter()
         .map(|(n, c)| {
-            let unit = config.node.depth_unit;
-            s.first_depth
-                .get(n)
-                .and_then(|i| decode_depth(i, c, unit).ok())
+            let image = s.first_depth.get(n)?;
+            usable(n, "depth image", decode_depth(image, c, unit))
         })
         .collect();
     let labels: Vec<Option<Vec<u8>>> = cameras
         .iter()
-        .map(|(n, c)| s.first_masks.get(n).and_then(|i| decode_labels(i, c).ok()))
+        .map(|(n, c)| {
+            let image = s.first_masks.get(n)?;
+            usable(n, "mask image", decode_labels(image, c))
+        })
         .collect();
     let frames: Vec<FirstFrames> = cameras
         .iter()
@@ -255,6 +257,14 @@ fn build_scene(config: &Config, cameras: &[(String, Camera)], s: &Shared) -> Res
         .unwrap_or_default();
     let (scene, _report) = crate::init::build_scene(&config.init(), &frames, &joints, false)?;
     Ok(scene)
+}
+
+/// A decoded first depth or mask image, or None with the reason logged: initialisation goes on
+/// without it (and says so itself if an object then cannot be built).
+fn usable<T>(camera: &str, what: &str, decoded: Result<T, String>) -> Option<T> {
+    decoded
+        .map_err(|why| log(&format!("camera {camera}: first {what} not used: {why}")))
+        .ok()
 }
 
 /// The node's observer of ticks: builds each tick's messages for the publishing thread, keeps the
