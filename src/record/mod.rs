@@ -263,7 +263,8 @@ fn bag_files(dir: &Path) -> Result<Vec<std::path::PathBuf>> {
     let meta_path = dir.join("metadata.yaml");
     let text = std::fs::read_to_string(&meta_path).with_context(|| {
         format!(
-            "{} is a directory without metadata.yaml: not a rosbag2 bag",
+            "{} is a directory without metadata.yaml: not a rosbag2 bag (give an .mcap file or a \
+             rosbag2 directory)",
             dir.display()
         )
     })?;
@@ -272,14 +273,16 @@ fn bag_files(dir: &Path) -> Result<Vec<std::path::PathBuf>> {
     let info = meta.rosbag2_bagfile_information;
     if info.storage_identifier != "mcap" {
         anyhow::bail!(
-            "{}: storage '{}' is not supported (only mcap)",
+            "{}: storage '{}' is not supported (only mcap; convert it with \
+             `ros2 bag convert` to storage_id mcap)",
             dir.display(),
             info.storage_identifier
         );
     }
     if !info.compression_format.is_empty() {
         anyhow::bail!(
-            "{}: compressed bags ({}) are not supported",
+            "{}: compressed bags ({}) are not supported (write an uncompressed copy with \
+             `ros2 bag convert`)",
             dir.display(),
             info.compression_format
         );
