@@ -5,13 +5,14 @@ Every header is restamped to the wall clock (recording time + the moment playbac
 node that tracks on the wall clock sees fresh data. Images, CameraInfo and JointState go out as
 recorded bytes (only the stamp is patched); /tf_static is published once, latched.
 
-    play_recording.py RECORDING.mcap [--loop] [--rate 1.0] [--skip-topic T ...]
+    play_recording.py RECORDING (a pegs recording directory or an .mcap file) [--loop] [--rate 1.0] [--skip-topic T ...]
 
 Importable: the tests drive `Player` tick by tick and inject faults between ticks.
 """
 import argparse
 import struct
 import time
+from pathlib import Path
 
 import rclpy
 from mcap.reader import make_reader
@@ -41,12 +42,15 @@ class Player:
         self.node = node
         self.messages = []  # (recording time, topic, type name, cdr)
         self.tf_static = None
-        with open(path, "rb") as f:
-            for schema, channel, message in make_reader(f).iter_messages():
-                if channel.topic == "/tf_static":
-                    self.tf_static = deserialize_message(message.data, TFMessage)
-                elif schema.name in TYPES and channel.topic not in skip_topics:
-                    self.messages.append((message.log_time * 1e-9, channel.topic, schema.name, bytes(message.data)))
+        # A rosbag2 directory (pegs's recordings) or a lone MCAP file.
+        files = sorted(Path(path).glob("*.mcap")) if Path(path).is_dir() else [Path(path)]
+        for file in files:
+            with open(file, "rb") as f:
+                for schema, channel, message in make_reader(f).iter_messages():
+                    if channel.topic == "/tf_static":
+                        self.tf_static = deserialize_message(message.data, TFMessage)
+                    elif schema.name in TYPES and channel.topic not in skip_topics:
+                        self.messages.append((message.log_time * 1e-9, channel.topic, schema.name, bytes(message.data)))
         self.messages.sort(key=lambda m: m[0])
         self.t0 = self.messages[0][0]
         self.duration = self.messages[-1][0] - self.t0

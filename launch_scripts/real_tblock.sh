@@ -7,5 +7,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA="${PEGS_REAL_DATA:-../shared/data/pusht_real}"
 mkdir -p real_out
-cargo run --release --locked -- import embodied-gaussians "$DATA" --out real_out/recording.mcap --config-out real_out/config.yaml
-cargo run --release --locked -- replay real_out/recording.mcap --config real_out/config.yaml --out real_out "$@"
+cargo run --release --locked -- import embodied-gaussians "$DATA" --out real_out/recording --config-out real_out/config.yaml
+cargo run --release --locked -- replay real_out/recording --config real_out/config.yaml --out real_out "$@"

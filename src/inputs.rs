@@ -6,7 +6,7 @@
 //! This module owns validation and buffering only; it never touches the world or the tracker.
 
 use crate::correct::View;
-use crate::msgs::{Image, JointState};
+use crate::msgs::{CompressedImage, Image, JointState};
 use crate::render::Camera;
 use crate::robot::{JointStateTracker, JointTrajectory, RobotModel};
 use glam::Vec3;
@@ -150,6 +150,20 @@ pub struct InputLog {
     pub unknown_joints: BTreeSet<String>,
     /// Explanations not yet handed to a logger (drained by `take_lines`).
     lines: Vec<String>,
+}
+
+impl InputLog {
+    /// Refuse an image for a reason found outside `Inputs` (undecodable compression, no pose
+    /// for a moving camera): counted and explained like the others.
+    pub fn refuse_image(&mut self, why: String) {
+        self.images_rejected += 1;
+        self.lines.push(why);
+    }
+
+    /// An explanation that refuses nothing.
+    pub fn say(&mut self, line: String) {
+        self.lines.push(line);
+    }
 }
 
 impl InputLog {
@@ -425,6 +439,41 @@ impl Inputs {
         }
         out
     }
+}
+
+/// An rgb8 image from a `sensor_msgs/CompressedImage` in JPEG or PNG (image_transport's
+/// `compressed` format strings: `jpeg`, `png`, `rgb8; jpeg compressed bgr8`, ...); an explanation
+/// for anything else (compressedDepth, unknown formats, undecodable data).
+pub fn decompress(msg: &CompressedImage) -> Result<Image, String> {
+    let format = msg.format.to_ascii_lowercase();
+    let kind = if format.contains("compresseddepth") {
+        return Err(format!(
+            "compressed format '{}' is depth, not colour",
+            msg.format
+        ));
+    } else if format.contains("jpeg") || format.contains("jpg") {
+        image::ImageFormat::Jpeg
+    } else if format.contains("png") {
+        image::ImageFormat::Png
+    } else {
+        return Err(format!(
+            "unsupported compressed format '{}' (jpeg and png are)",
+            msg.format
+        ));
+    };
+    let decoded = image::load_from_memory_with_format(&msg.data, kind)
+        .map_err(|e| format!("cannot decode the {:?} image: {e}", kind))?
+        .to_rgb8();
+    let (width, height) = decoded.dimensions();
+    Ok(Image {
+        header: msg.header.clone(),
+        height,
+        width,
+        encoding: "rgb8".into(),
+        is_bigendian: 0,
+        step: 3 * width,
+        data: decoded.into_raw(),
+    })
 }
 
 /// Linear RGB in [0, 1] from an rgb8 or bgr8 image of the camera's size (BGR converted here, at
@@ -805,5 +854,57 @@ mod tests {
         let held = far.trajectory.unwrap().at(1.0).unwrap()[0];
         assert!((held - (0.1 + MAX_JOINT_EXTRAPOLATION_S)).abs() < 1e-9);
         assert!(far.joint_samples.is_empty(), "each sample reaches one tick");
+    }
+
+    /// PNG decompresses to exactly the pixels it was made from, JPEG to within its quantisation;
+    /// depth and unknown formats are refused by name.
+    #[test]
+    fn compressed_colour_decodes_to_the_pixels_it_encodes() {
+        let (w, h) = (16u32, 8u32);
+        let pixels: Vec<u8> = (0..w * h * 3).map(|i| (i * 7 % 251) as u8).collect();
+        let picture = image::RgbImage::from_raw(w, h, pixels.clone()).unwrap();
+        let encode = |format: image::ImageFormat| {
+            let mut bytes = std::io::Cursor::new(Vec::new());
+            picture.write_to(&mut bytes, format).unwrap();
+            bytes.into_inner()
+        };
+        let msg = |format: &str, data: Vec<u8>| CompressedImage {
+            header: image(1.0).header,
+            format: format.into(),
+            data,
+        };
+        let png = decompress(&msg(
+            "rgb8; png compressed rgb8",
+            encode(image::ImageFormat::Png),
+        ))
+        .unwrap();
+        assert_eq!(
+            (png.width, png.height, png.encoding.as_str()),
+            (w, h, "rgb8")
+        );
+        assert_eq!(png.data, pixels);
+        assert_eq!(png.header.stamp, Time::from_seconds(1.0));
+        let smooth: Vec<u8> = (0..w * h * 3)
+            .map(|i| (60 + (i / 3 % w) * 4) as u8)
+            .collect();
+        let picture = image::RgbImage::from_raw(w, h, smooth.clone()).unwrap();
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        picture
+            .write_to(&mut bytes, image::ImageFormat::Jpeg)
+            .unwrap();
+        let jpeg = decompress(&msg("jpeg", bytes.into_inner())).unwrap();
+        let worst = jpeg
+            .data
+            .iter()
+            .zip(&smooth)
+            .map(|(a, b)| (*a as i32 - *b as i32).abs())
+            .max()
+            .unwrap();
+        assert!(worst <= 12, "JPEG off by {worst}");
+        let depth = decompress(&msg("16UC1; compressedDepth png", vec![])).unwrap_err();
+        assert!(depth.contains("depth"), "{depth}");
+        let other = decompress(&msg("theora", vec![1, 2])).unwrap_err();
+        assert!(other.contains("'theora'"), "{other}");
+        assert!(decompress(&msg("jpeg", vec![1, 2, 3])).is_err());
     }
 }

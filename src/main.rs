@@ -103,7 +103,7 @@ enum ScenarioCommand {
     /// Generate every scenario, replay each with --compare, and print a Markdown table of the
     /// tracking errors; with --readme, write it between the scenario-table markers of that file.
     Table(TableScenarioArgs),
-    /// Simulate a scenario and write DIR/recording.mcap, DIR/ground_truth.csv and DIR/config.yaml.
+    /// Simulate a scenario and write DIR/recording, DIR/ground_truth.csv and DIR/config.yaml.
     Generate(GenerateScenarioArgs),
 }
 
@@ -617,7 +617,7 @@ fn scenario_generate(a: GenerateScenarioArgs) -> Result<()> {
     };
     pegs::scenario::generate::generate(&name, &out, &opts)?;
     println!(
-        "wrote {0}/recording.mcap, {0}/ground_truth.csv and {0}/config.yaml",
+        "wrote {0}/recording, {0}/ground_truth.csv and {0}/config.yaml",
         out.display()
     );
     Ok(())

@@ -11,6 +11,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct NodeConfig {
+    /// Camera names. Empty: `pegs replay` uses every camera whose topics match the templates;
+    /// `pegs node` needs them named.
     pub cameras: Vec<String>,
     pub image_topic: String,
     pub camera_info_topic: String,
@@ -20,7 +22,8 @@ pub struct NodeConfig {
     pub mask_topic: String,
     /// Metres per unit of 16UC1 depth (realsense2_camera publishes millimetres: 0.001).
     pub depth_unit: f32,
-    /// Each camera's optical frame (z forward, y down), looked up on /tf_static.
+    /// Each camera's optical frame (z forward, y down), found in the tf tree from `world_frame`.
+    /// Empty: the `frame_id` of the camera's images and CameraInfo.
     pub optical_frame: String,
     pub joint_states_topic: String,
     pub world_frame: String,
@@ -36,13 +39,13 @@ pub struct NodeConfig {
 impl Default for NodeConfig {
     fn default() -> Self {
         Self {
-            cameras: vec!["cam0".into(), "cam1".into(), "cam2".into()],
-            image_topic: "/{camera}/color/image_raw".into(),
-            camera_info_topic: "/{camera}/color/camera_info".into(),
-            depth_topic: "/{camera}/depth/image_raw".into(),
-            mask_topic: "/{camera}/mask/image_raw".into(),
+            cameras: Vec::new(),
+            image_topic: "/camera/{camera}/color/image_raw".into(),
+            camera_info_topic: "/camera/{camera}/color/camera_info".into(),
+            depth_topic: "/camera/{camera}/aligned_depth_to_color/image_raw".into(),
+            mask_topic: "/camera/{camera}/mask/image_raw".into(),
             depth_unit: 0.001,
-            optical_frame: "{camera}_color_optical_frame".into(),
+            optical_frame: String::new(),
             joint_states_topic: "/joint_states".into(),
             world_frame: "world".into(),
             output_prefix: "/pegs".into(),
@@ -54,17 +57,22 @@ impl Default for NodeConfig {
 
 impl NodeConfig {
     pub fn validate(&self) -> Result<()> {
-        if self.cameras.is_empty() {
-            bail!("node.cameras must name at least one camera");
-        }
         for (name, t) in [
             ("image_topic", &self.image_topic),
             ("camera_info_topic", &self.camera_info_topic),
-            ("optical_frame", &self.optical_frame),
+            ("depth_topic", &self.depth_topic),
+            ("mask_topic", &self.mask_topic),
         ] {
             if !t.contains("{camera}") {
                 bail!("node.{name} must contain {{camera}}, got '{t}'");
             }
+        }
+        if !self.optical_frame.is_empty() && !self.optical_frame.contains("{camera}") {
+            bail!(
+                "node.optical_frame must be empty (the images' frame_id) or contain {{camera}}, \
+                 got '{}'",
+                self.optical_frame
+            );
         }
         if !(self.depth_unit.is_finite() && self.depth_unit > 0.0) {
             bail!("node.depth_unit must be > 0 m, got {}", self.depth_unit);
@@ -78,9 +86,38 @@ impl NodeConfig {
         Ok(())
     }
 
+    /// What `pegs node` needs beyond `validate`: the cameras named.
+    pub fn validate_live(&self) -> Result<()> {
+        if self.cameras.is_empty() {
+            bail!(
+                "node.cameras must name at least one camera (e.g. node.cameras: [cam_left, \
+                 cam_right, cam_top], the camera_name each realsense2_camera driver was given)"
+            );
+        }
+        Ok(())
+    }
+
     /// `template` with `{camera}` replaced.
     pub fn for_camera(template: &str, camera: &str) -> String {
         template.replace("{camera}", camera)
+    }
+
+    /// The camera whose name fills `{camera}` in `template` to give `topic`, if any (a name is
+    /// one path segment: no '/').
+    pub fn camera_in(template: &str, topic: &str) -> Option<String> {
+        let (before, after) = template.split_once("{camera}")?;
+        let name = topic.strip_prefix(before)?.strip_suffix(after)?;
+        (!name.is_empty() && !name.contains('/')).then(|| name.to_string())
+    }
+
+    /// Camera `camera`'s optical frame: the template's, or `header_frame` when the template is
+    /// empty (then the images' own frame_id).
+    pub fn optical_frame_of(&self, camera: &str, header_frame: &str) -> String {
+        if self.optical_frame.is_empty() {
+            header_frame.trim_start_matches('/').to_string()
+        } else {
+            Self::for_camera(&self.optical_frame, camera)
+        }
     }
 }
 
@@ -93,11 +130,7 @@ mod tests {
         let c = NodeConfig::default();
         assert_eq!(
             NodeConfig::for_camera(&c.image_topic, "cam1"),
-            "/cam1/color/image_raw"
-        );
-        assert_eq!(
-            NodeConfig::for_camera(&c.optical_frame, "cam1"),
-            "cam1_color_optical_frame"
+            "/camera/cam1/color/image_raw"
         );
         c.validate().unwrap();
         let fixed = NodeConfig {
@@ -105,10 +138,31 @@ mod tests {
             ..c.clone()
         };
         assert!(format!("{:#}", fixed.validate().unwrap_err()).contains("image_topic"));
-        let none = NodeConfig {
-            cameras: vec![],
+        assert!(c.validate_live().is_err(), "the node needs cameras named");
+        assert_eq!(
+            NodeConfig::camera_in(&c.image_topic, "/camera/left/color/image_raw"),
+            Some("left".into())
+        );
+        for other in [
+            "/camera/left/depth/image_raw",
+            "/camera//color/image_raw",
+            "/camera/a/b/color/image_raw",
+            "/left/color/image_raw",
+        ] {
+            assert_eq!(
+                NodeConfig::camera_in(&c.image_topic, other),
+                None,
+                "{other}"
+            );
+        }
+        assert_eq!(
+            c.optical_frame_of("left", "left_color_optical_frame"),
+            "left_color_optical_frame"
+        );
+        let named = NodeConfig {
+            optical_frame: "{camera}_optical".into(),
             ..c
         };
-        assert!(none.validate().is_err());
+        assert_eq!(named.optical_frame_of("left", "whatever"), "left_optical");
     }
 }

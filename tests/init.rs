@@ -253,7 +253,7 @@ fn replay_builds_the_world_from_the_recordings_first_rgbd_frames_and_tracks() {
     let out = dir.join("out");
     pegs(&[
         "replay",
-        dir.join("recording.mcap").to_str().unwrap(),
+        dir.join("recording").to_str().unwrap(),
         "--config",
         dir.join("rgbd.yaml").to_str().unwrap(),
         "--out",

@@ -56,7 +56,7 @@ fn generated_recording_replays_deterministically_and_visual_forces_beat_physics_
         "--height",
         "180",
     ]);
-    let (rec, cfg) = (scn.join("recording.mcap"), scn.join("config.yaml"));
+    let (rec, cfg) = (scn.join("recording"), scn.join("config.yaml"));
     let (a, b, p) = (scratch("a"), scratch("b"), scratch("p"));
     let m = replay(&rec, &cfg, &a, &["--compare"]);
     let csv = std::fs::read_to_string(a.join("objects.csv")).unwrap();
@@ -117,7 +117,7 @@ fn a_truncated_recording_replays_what_it_holds_and_says_so() {
         "--seconds",
         "1.5",
     ]);
-    let bytes = std::fs::read(scn.join("recording.mcap")).unwrap();
+    let bytes = std::fs::read(scn.join("recording/recording_0.mcap")).unwrap();
     let cut = scn.join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
     let out = scratch("trunc-out");
@@ -156,7 +156,7 @@ fn replay_without_a_scene_is_a_clear_error() {
     let o = Command::new(env!("CARGO_BIN_EXE_pegs"))
         .args([
             "replay",
-            scn.join("recording.mcap").to_str().unwrap(),
+            scn.join("recording").to_str().unwrap(),
             "--config",
             scn.join("empty.yaml").to_str().unwrap(),
             "--out",
@@ -189,7 +189,7 @@ fn a_camera_that_stops_publishing_drops_out_and_is_reported() {
         "--seconds",
         "1.5",
     ]);
-    let (messages, problem) = pegs::record::read_messages(&scn.join("recording.mcap")).unwrap();
+    let (messages, problem) = pegs::record::read_messages(&scn.join("recording")).unwrap();
     assert!(problem.is_none());
     let cut = scn.join("cam1_stops.mcap");
     let mut w = pegs::record::RecordingWriter::create(&cut).unwrap();
@@ -200,7 +200,7 @@ fn a_camera_that_stops_publishing_drops_out_and_is_reported() {
         pegs::msgs::schema::tf_message(),
     ];
     for m in &messages {
-        if m.topic == "/cam1/color/image_raw" && m.time > 0.5 {
+        if m.topic == pegs::record::image_topic("cam1") && m.time > 0.5 {
             continue;
         }
         let schema = schemas.iter().find(|s| s.0 == m.schema).unwrap().clone();
@@ -257,7 +257,7 @@ fn a_rope_is_measured_against_its_true_particles_and_fewer_cameras_can_be_chosen
         31 * 30,
         "30 rope particles per frame, 31 frames"
     );
-    let (rec, cfg) = (scn.join("recording.mcap"), scn.join("config.yaml"));
+    let (rec, cfg) = (scn.join("recording"), scn.join("config.yaml"));
     let (all, one) = (scratch("rope-all"), scratch("rope-one"));
     let m = replay(&rec, &cfg, &all, &[]);
     // Started 1 cm / 5 deg off its true shape: the particle-wise error says so at the start.

@@ -271,7 +271,7 @@ fn recordings(
             scene,
             ..Config::default()
         };
-        recordings.insert(v.resolution, (rec_dir.join("recording.mcap"), config));
+        recordings.insert(v.resolution, (rec_dir.join("recording"), config));
     }
     Ok(recordings)
 }

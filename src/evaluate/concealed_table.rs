@@ -128,7 +128,7 @@ pub fn run(
         generate::generate(name, &dir, &opts).with_context(|| format!("generating {name}"))?;
         let config = Config::load(&dir.join("config.yaml"))?;
         let report = diagnose(
-            &dir.join("recording.mcap"),
+            &dir.join("recording"),
             &config,
             &dir.join("diagnosis"),
             DiagnoseOptions {

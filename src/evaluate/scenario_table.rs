@@ -26,12 +26,7 @@ pub fn run(out: &Path, width: u32, height: u32) -> Result<String> {
         };
         generate::generate(name, &dir, &opts).with_context(|| format!("generating {name}"))?;
         let config = Config::load(&dir.join("config.yaml"))?;
-        let m = replay::run_compare(
-            &dir.join("recording.mcap"),
-            &config,
-            &dir.join("replay"),
-            false,
-        )?;
+        let m = replay::run_compare(&dir.join("recording"), &config, &dir.join("replay"), false)?;
         for (object, e) in &m.tracking_error {
             let c = m.comparison.get(object).cloned().unwrap_or_default();
             rows.push(format!(

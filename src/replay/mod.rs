@@ -6,12 +6,13 @@
 //! diagnosis, the trace. Deterministic: the same recording and configuration give the same
 //! outputs.
 //!
-//! - `recording`: the recording's messages sorted into per-camera streams.
+//! - `recording`: the recording surveyed (cameras by the `node` templates, tf, joint states) and
+//!   its first frames read.
 //! - `start`: the world at the start (a scenario, or initialised from the first frames).
-//! - `feed`: offers the messages to `inputs::Inputs` as the clock passes their stamps.
+//! - `feed`: streams the colour images to `inputs::Inputs` as the clock passes their stamps.
 
 mod feed;
-mod recording;
+pub mod recording;
 pub mod silhouette;
 mod start;
 mod truth;
@@ -191,8 +192,17 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         mode: Metrics::mode(&opts).into(),
         ..Default::default()
     };
-    let streams = Streams::read(recording, opts.max_cameras, &mut metrics.warnings)?;
-    metrics.cameras = streams.cameras.iter().map(|c| c.0.clone()).collect();
+    let fit = config.scene.table.as_ref().map_or((1, 0.0), |t| {
+        (t.fit_frames.max(1) as usize, t.fit_span as f64)
+    });
+    let streams = Streams::read(
+        recording,
+        &config.node,
+        fit,
+        opts.max_cameras,
+        &mut metrics.warnings,
+    )?;
+    metrics.cameras = streams.cameras.iter().map(|c| c.name.clone()).collect();
     let (mut scene, ground) = start::scene(&streams, config, opts.progress, &mut metrics)?;
     if scene.robot.is_some() && streams.joint_states.is_empty() {
         metrics
@@ -200,14 +210,14 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
             .push("no joint states: the robot holds its scenario motion".into());
     }
     let config = replay_config(config, ground, &opts);
-    let (t0, t_end) = streams.span();
+    let (t0, t_end) = streams.span;
     let dt = config.physics.dt as f64;
     let ticks = ((t_end - t0) / dt + 1e-6).floor().max(0.0) as usize;
     scene.world.time = t0;
     let mut tracker = Tracker::new(scene, &config, opts.visual_forces)?;
     let mut observers = Observers::new(recording, out, &config, &tracker, &metrics, ticks, opts)?;
     observers.start(&tracker)?;
-    let mut feed = Feed::new(&streams, &tracker);
+    let mut feed = Feed::new(&streams, &tracker)?;
     let progress = if opts.progress {
         indicatif::ProgressBar::new(ticks as u64)
     } else {

@@ -1,7 +1,7 @@
 //! The world a replay starts from: a built-in scenario's (with its configured start error), or one
 //! initialised from the recording's first frames (`init`): the first image of every camera and
-//! images spread over the table's fit span, the first depth and mask images, the first joint
-//! states.
+//! images spread over the table's fit span (picked by `recording`), the first depth and mask
+//! images, the first joint states.
 
 use super::Metrics;
 use super::recording::Streams;
@@ -29,29 +29,31 @@ pub fn scene(
         );
         return Ok((scenario::build(name, offset)?, None));
     }
-    let (count, span) = scene_config.table.as_ref().map_or((1, 0.0), |t| {
-        (t.fit_frames.max(1) as usize, t.fit_span as f64)
-    });
-    let colour: Vec<Vec<Vec<Vec3>>> = streams
-        .cameras
-        .iter()
-        .zip(&streams.images)
-        .map(|((_, camera), images)| spread_frames(images, camera, count, span))
-        .collect();
     let mut depths = Vec::new();
     let mut labels = Vec::new();
-    for (c, (name, cam)) in streams.cameras.iter().enumerate() {
+    let mut colour = Vec::new();
+    for stream in &streams.cameras {
+        let (name, cam) = (&stream.name, &stream.camera);
         let mut unused = |what: &str, why: String| {
             metrics
                 .warnings
                 .push(format!("camera {name}: {what} not used: {why}"))
         };
+        colour.push(
+            stream
+                .first_images
+                .iter()
+                .filter_map(|(_, i)| {
+                    decode_image(i, cam)
+                        .map_err(|why| unused("a first image", why))
+                        .ok()
+                })
+                .collect::<Vec<_>>(),
+        );
         let unit = config.node.depth_unit;
-        let depth = streams.depth[c]
-            .as_ref()
-            .map(|i| decode_depth(i, cam, unit));
+        let depth = stream.depth.as_ref().map(|i| decode_depth(i, cam, unit));
         depths.push(depth.and_then(|d| d.map_err(|why| unused("depth", why)).ok()));
-        let mask = streams.masks[c].as_ref().map(|i| decode_labels(i, cam));
+        let mask = stream.mask.as_ref().map(|i| decode_labels(i, cam));
         labels.push(mask.and_then(|m| m.map_err(|why| unused("masks", why)).ok()));
     }
     let frames: Vec<FirstFrames> = streams
@@ -59,9 +61,9 @@ pub fn scene(
         .iter()
         .zip(&colour)
         .zip(depths.iter().zip(&labels))
-        .map(|(((name, cam), images), (d, l))| FirstFrames {
-            name: name.clone(),
-            camera: *cam,
+        .map(|((stream, images), (d, l))| FirstFrames {
+            name: stream.name.clone(),
+            camera: stream.camera,
             images: images.iter().map(|i| i.as_slice()).collect(),
             depth: d.as_deref(),
             labels: l.as_deref(),
@@ -96,34 +98,4 @@ pub fn scene(
     let ground = report.ground;
     metrics.init = Some(report);
     Ok((scene, ground))
-}
-
-/// The first decodable image of a camera, then images spread over `span` seconds after it
-/// (`count` in all, fewer if they coincide).
-fn spread_frames(
-    images: &[(f64, crate::msgs::Image)],
-    camera: &crate::render::Camera,
-    count: usize,
-    span: f64,
-) -> Vec<Vec<Vec3>> {
-    let Some(first) = images.first() else {
-        return Vec::new();
-    };
-    let usable: Vec<(f64, Vec<Vec3>)> = images
-        .iter()
-        .filter(|(t, _)| *t <= first.0 + span + 1e-9)
-        .filter_map(|(t, img)| decode_image(img, camera).ok().map(|d| (*t, d)))
-        .collect();
-    let mut picked: Vec<usize> = (0..count)
-        .filter_map(|k| {
-            let target = usable.first()?.0 + span * k as f64 / (count.max(2) - 1) as f64;
-            (0..usable.len()).min_by(|&a, &b| {
-                (usable[a].0 - target)
-                    .abs()
-                    .total_cmp(&(usable[b].0 - target).abs())
-            })
-        })
-        .collect();
-    picked.dedup();
-    picked.into_iter().map(|i| usable[i].1.clone()).collect()
 }

@@ -134,6 +134,7 @@ fn node_options(config: &Config, live: &Arc<Mutex<Config>>) -> Result<NodeOption
 }
 
 async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> Result<RunStats> {
+    config.node.validate_live()?;
     let context = ros_context()?;
     let live = Arc::new(Mutex::new(config.clone()));
     let node_name = launch.node_name.clone().unwrap_or_else(|| "pegs".into());

@@ -50,7 +50,10 @@ fn to_parameter(value: &Value) -> Option<ParameterValue> {
         Value::Number(n) if n.is_i64() || n.is_u64() => ParameterValue::Integer(n.as_i64()?),
         Value::Number(n) => ParameterValue::Double(n.as_f64()?),
         Value::String(s) => ParameterValue::String(s.clone()),
-        Value::Array(items) if !items.is_empty() => {
+        // An empty list is declared as an empty string array (its type is unknown; what is set
+        // later is checked against the configuration like any value).
+        Value::Array(items) if items.is_empty() => ParameterValue::StringArray(Vec::new()),
+        Value::Array(items) => {
             if items.iter().all(Value::is_number) {
                 ParameterValue::DoubleArray(items.iter().filter_map(Value::as_f64).collect())
             } else if items.iter().all(Value::is_string) {

@@ -8,10 +8,10 @@ use super::{log, now};
 use crate::inputs::Inputs;
 use crate::math::Pose;
 use crate::msgs::{CameraInfo, Image, JointState, TfMessage};
+use crate::record::TfTree;
 use crate::topics::NodeConfig;
 use anyhow::{Result, anyhow};
 use futures::StreamExt;
-use glam::{Quat, Vec3};
 use ros2_client::dds::rustdds::{self, TopicKind, policy::ResourceLimits};
 use ros2_client::qos::{Durability, History, Reliability, WhenFull};
 use ros2_client::{Context, MessageTypeName, Name, Node, NodeName, QosProfile};
@@ -23,8 +23,10 @@ use std::time::Duration;
 #[derive(Default)]
 pub struct Shared {
     pub infos: BTreeMap<String, CameraInfo>,
-    /// Camera name -> world-to-camera pose, from /tf_static.
+    /// Camera name -> world-to-camera pose, from the tf tree.
     pub camera_poses: BTreeMap<String, Pose>,
+    /// `/tf_static` as received.
+    pub tf: TfTree,
     /// Before the tracker starts: the newest image, depth and mask of each camera (for init).
     pub first_images: BTreeMap<String, Image>,
     pub first_depth: BTreeMap<String, Image>,
@@ -126,35 +128,30 @@ impl Shared {
         }
     }
 
-    /// Camera poses from `world` -> optical frame transforms (`frames`: optical frame -> camera).
-    fn on_tf_static(&mut self, frames: &BTreeMap<String, String>, world: &str, tf: TfMessage) {
-        for t in tf.transforms {
-            let Some(cam) = frames.get(&t.child_frame_id) else {
-                continue;
-            };
-            if t.header.frame_id != world {
-                log(&format!(
-                    "/tf_static {} -> {}: only transforms from '{world}' are used",
-                    t.header.frame_id, t.child_frame_id
-                ));
-                continue;
-            }
-            let (p, q) = (t.transform.translation, t.transform.rotation);
-            let values = [p.x, p.y, p.z, q.x, q.y, q.z, q.w];
-            let norm = (q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w).sqrt();
-            if values.iter().any(|v| !v.is_finite()) || !(0.5..2.0).contains(&norm) {
-                log(&format!(
-                    "/tf_static {}: not a valid transform; ignored",
-                    t.child_frame_id
-                ));
+    /// `/tf_static` into the tf tree, then the camera poses it now resolves.
+    fn on_tf_static(&mut self, nc: &NodeConfig, tf: TfMessage) {
+        for why in self.tf.add(&tf, true) {
+            log(&why);
+        }
+        self.resolve_camera_poses(nc);
+    }
+
+    /// Each camera's pose from the tf tree: world -> ... -> its optical frame (the template's,
+    /// or its CameraInfo's frame_id when the template is empty), once both are known.
+    fn resolve_camera_poses(&mut self, nc: &NodeConfig) {
+        for camera in &nc.cameras {
+            let header = self
+                .infos
+                .get(camera)
+                .map_or("", |i| i.header.frame_id.as_str());
+            let frame = nc.optical_frame_of(camera, header);
+            if frame.is_empty() {
                 continue;
             }
-            let camera_to_world = Pose::new(
-                Vec3::new(p.x as f32, p.y as f32, p.z as f32),
-                Quat::from_xyzw(q.x as f32, q.y as f32, q.z as f32, q.w as f32).normalize(),
-            );
-            self.camera_poses
-                .insert(cam.clone(), camera_to_world.inverse());
+            if let Ok(world_from_optical) = self.tf.lookup_nearest(&nc.world_frame, &frame, 0.0) {
+                self.camera_poses
+                    .insert(camera.clone(), world_from_optical.inverse());
+            }
         }
     }
 }
@@ -265,11 +262,15 @@ pub fn subscribe(
         )?;
         let c = cam.clone();
         let info_qos = state_qos(5).reliability(Reliability::BestEffort);
+        let frames = nc.clone();
         s.subscribe(
             &topic(&nc.camera_info_topic),
             ("sensor_msgs", "CameraInfo"),
             info_qos,
-            move |s, info| s.on_camera_info(&c, info),
+            move |s, info| {
+                s.on_camera_info(&c, info);
+                s.resolve_camera_poses(&frames);
+            },
         )?;
         // Depth and masks: only the first frames, for initialisation.
         for (template, depth) in [(&nc.depth_topic, true), (&nc.mask_topic, false)] {
@@ -298,16 +299,11 @@ pub fn subscribe(
         state_qos(100),
         Shared::on_joint_state,
     )?;
-    let frames: BTreeMap<String, String> = nc
-        .cameras
-        .iter()
-        .map(|c| (NodeConfig::for_camera(&nc.optical_frame, c), c.clone()))
-        .collect();
-    let world = nc.world_frame.clone();
+    let frames = nc.clone();
     s.subscribe(
         "/tf_static",
         ("tf2_msgs", "TFMessage"),
         latched_qos(),
-        move |s, tf| s.on_tf_static(&frames, &world, tf),
+        move |s, tf| s.on_tf_static(&frames, tf),
     )
 }

@@ -47,7 +47,7 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
     let config = model_config(name);
     let mut truth = Tracker::new(build(name, Pose::IDENTITY)?, &truth_config(name), false)?;
     let cams = cameras(name, opts.width, opts.height);
-    let mut rec = RecordingWriter::create(&out.join("recording.mcap"))?;
+    let mut rec = RecordingWriter::create(&out.join("recording"))?;
     let mut gt = TrajectoryWriter::create(&out.join("ground_truth.csv"))?;
     let mut gt_particles = ParticleWriter::create(&out.join("ground_truth_particles.csv"))?;
     // Static extrinsics: each optical frame's pose in the world.
@@ -92,7 +92,7 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
     rec.finish()?;
     gt.finish()?;
     gt_particles.finish()?;
-    let replay_config = Config {
+    let mut replay_config = Config {
         scene: SceneConfig {
             scenario: Some(name.to_string()),
             offset_position: opts.offset_position,
@@ -101,6 +101,7 @@ pub fn generate(name: &str, out: &Path, opts: &GenerateOptions) -> Result<()> {
         },
         ..config
     };
+    replay_config.node.cameras = named.iter().map(|(n, _)| n.clone()).collect();
     std::fs::write(out.join("config.yaml"), replay_config.to_yaml()?)?;
     Ok(())
 }

@@ -139,13 +139,13 @@ def main_run(recording, ros):
     node = rclpy.create_node("pegs_test_main")
     recorder = Recorder(node)
     proc, stats_path = start_node(recording, "main")
-    player = Player(node, str(recording / "recording.mcap"))
-    image_pub = node.create_publisher(Image, "/cam0/color/image_raw", SENSOR)
-    image1_pub = node.create_publisher(Image, "/cam1/color/image_raw", SENSOR)
+    player = Player(node, str(recording / "recording"))
+    image_pub = node.create_publisher(Image, "/camera/cam0/color/image_raw", SENSOR)
+    image1_pub = node.create_publisher(Image, "/camera/cam1/color/image_raw", SENSOR)
     joints_pub = player.publishers["/joint_states"]
     wait_for_discovery(node, player)
     # A good image to copy faults from.
-    template = next(m for m in player.messages if m[1] == "/cam0/color/image_raw")
+    template = next(m for m in player.messages if m[1] == "/camera/cam0/color/image_raw")
     from rclpy.serialization import deserialize_message
     good = deserialize_message(template[3], Image)
     joint_names = deserialize_message(next(m for m in player.messages if m[1] == "/joint_states")[3], JointState).name
@@ -186,7 +186,7 @@ def main_run(recording, ros):
             image_pub.publish(set_stamp(good, now - 0.2 + k * 1e-5))
 
     def stop_cam2(now):
-        player.paused_topics.add("/cam2/")
+        player.paused_topics.add("/camera/cam2/")
 
     faults = [
         fault("wrong_encoding", 0.5, wrong_encoding),
@@ -395,7 +395,7 @@ def test_node_runs_without_camera_info_for_one_camera(recording, ros):
     node = rclpy.create_node("pegs_test_missing_info")
     recorder = Recorder(node)
     proc, stats_path = start_node(recording, "missing_info")
-    player = Player(node, str(recording / "recording.mcap"), skip_topics=("/cam2/color/camera_info",))
+    player = Player(node, str(recording / "recording"), skip_topics=("/camera/cam2/color/camera_info",))
     wait_for_discovery(node, player)
     # Twice through: the node waits a few seconds for the missing CameraInfo before it starts.
     for _ in range(2):
@@ -426,9 +426,9 @@ def test_large_images_are_not_hoarded_by_the_receive_cache(recording, ros):
     which is how a long run grew by the depth and mask images of every recording loop)."""
     node = rclpy.create_node("pegs_test_cache")
     proc, stats_path = start_node(recording, "cache")
-    pub = node.create_publisher(Image, "/cam0/depth/image_raw", SENSOR)
+    pub = node.create_publisher(Image, "/camera/cam0/aligned_depth_to_color/image_raw", SENSOR)
     end = time.time() + 20
-    while time.time() < end and node.count_subscribers("/cam0/depth/image_raw") == 0:
+    while time.time() < end and node.count_subscribers("/camera/cam0/aligned_depth_to_color/image_raw") == 0:
         rclpy.spin_once(node, timeout_sec=0.05)
     spin_for(node, 1.0)
     before = rss_mb(proc.pid)
