@@ -3,7 +3,8 @@
     python generate.py --kind drag --seed 3 --out DIR [--width 320 --height 180] [--shape long_push]
     python generate.py --kind all --seeds 0-4 --out DIR
 
-Each recording is a folder: `bag/` (rosbag2, MCAP), `ground_truth.csv`, `truth.json` (the
+Each recording is a folder: `bag/` (rosbag2, MCAP or SQLite3; `--layout realsense` for what a
+RealSense + Franka rig records), `ground_truth.csv`, `truth.json` (the
 hidden effect, for judging) and `config.yaml` (what a user would configure). Run inside the venv
 that tests/mujoco/setup_venv.sh makes; needs MUJOCO_GL=egl (set here when unset).
 """
@@ -34,7 +35,7 @@ def seeds(text: str) -> list[int]:
 
 
 def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str | None, stamp0: float,
-           depth: str = "32FC1") -> Path:
+           depth: str = "32FC1", layout: str = "pegs", storage: str = "mcap") -> Path:
     scene = scenes.draw(kind, seed, shape)
     folder = out / f"{kind}_{seed}"
     folder.mkdir(parents=True, exist_ok=True)
@@ -46,9 +47,9 @@ def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str 
         for f in bag.iterdir():
             f.unlink()
         bag.rmdir()
-    write.write_bag(bag, run, stamp0, depth)
+    write.write_bag(bag, run, stamp0, depth, layout, storage)
     write.write_truth(folder, scene, run, stamp0)
-    write.write_config(folder, scene, urdf)
+    write.write_config(folder, scene, urdf, [c.name for c in run.cameras])
     print(f"{folder.name}: {scene.shape}, {len(run.frames)} frames, truth {scene.truth.get('family')} "
           f"in {time.time() - clock:.1f} s", flush=True)
     return folder
@@ -65,12 +66,15 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=180)
     ap.add_argument("--stamp0", type=float, default=0.0, help="stamp of the first message, s")
     ap.add_argument("--depth", choices=["32FC1", "16UC1"], default="32FC1", help="depth encoding (16UC1: mm)")
+    ap.add_argument("--layout", choices=["pegs", "realsense"], default="pegs",
+                    help="realsense: JPEG colour, 16UC1 depth, no masks, the drivers' tf chain (see write.py)")
+    ap.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     a = ap.parse_args()
     kinds = scenes.KINDS if a.kind == "all" else [a.kind]
     chosen = seeds(a.seeds) if a.seeds else [a.seed if a.seed is not None else 0]
     for kind in kinds:
         for seed in chosen:
-            record(kind, seed, a.out, a.width, a.height, a.shape, a.stamp0, a.depth)
+            record(kind, seed, a.out, a.width, a.height, a.shape, a.stamp0, a.depth, a.layout, a.storage)
 
 
 if __name__ == "__main__":

@@ -1,9 +1,18 @@
 """A simulated run (simulate.py) written as a rig would record it, with a third-party writer
-(PyPI `rosbags`): a rosbag2 directory with MCAP storage holding colour (rgb8), aligned depth
-(32FC1 metres, or 16UC1 millimetres as a RealSense records it), instance labels (mono8), CameraInfo, the optical frames on /tf_static and the
-arm's /joint_states; beside it the ground truth (`ground_truth.csv`, pegs's layout), the hidden
-truth (`truth.json`) and the configuration a user would write (`config.yaml`: cameras, objects as
-the user believes them, the robot). Owns the files only.
+(PyPI `rosbags`): a rosbag2 directory (MCAP or SQLite3 storage) on realsense2_camera's topics
+(`/camera/{camera}/color/...`, `/camera/{camera}/aligned_depth_to_color/image_raw`), CameraInfo and
+the arm's /joint_states. Two layouts:
+
+- `pegs`: raw rgb8 colour, depth (32FC1 metres or 16UC1 millimetres), instance labels (mono8),
+  each optical frame straight from `world` on /tf_static;
+- `realsense`: what a RealSense + Franka rig records: JPEG colour on `.../image_raw/compressed`
+  only, 16UC1 millimetre depth, no masks, the tf chain the drivers publish
+  (`world -> {camera}_link` by the user, `{camera}_link -> {camera}_color_frame ->
+  {camera}_color_optical_frame` by realsense2_camera).
+
+Beside the bag: the ground truth (`ground_truth.csv`, pegs's layout), the hidden truth
+(`truth.json`) and the configuration a user would write (`config.yaml`: cameras, objects as the
+user believes them, the robot). Owns the files only.
 """
 
 from __future__ import annotations
@@ -23,6 +32,7 @@ TYPES = get_typestore(Stores.ROS2_JAZZY)
 Header = TYPES.types["std_msgs/msg/Header"]
 Time = TYPES.types["builtin_interfaces/msg/Time"]
 Image = TYPES.types["sensor_msgs/msg/Image"]
+CompressedImage = TYPES.types["sensor_msgs/msg/CompressedImage"]
 CameraInfo = TYPES.types["sensor_msgs/msg/CameraInfo"]
 RegionOfInterest = TYPES.types["sensor_msgs/msg/RegionOfInterest"]
 JointState = TYPES.types["sensor_msgs/msg/JointState"]
@@ -71,9 +81,57 @@ def depth_image(t: float, frame: str, depth: np.ndarray, encoding: str):
     return image(t, frame, depth.astype("<f4"), "32FC1", 4 * depth.shape[1])
 
 
-def write_bag(path: Path, run: Run, stamp0: float, depth_encoding: str = "32FC1") -> None:
-    """The rosbag2 directory `path` (MCAP storage)."""
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+def compressed(t: float, frame: str, rgb: np.ndarray):
+    """JPEG colour as image_transport's `compressed` plugin publishes it."""
+    from io import BytesIO
+
+    from PIL import Image as Picture
+    buffer = BytesIO()
+    Picture.fromarray(np.ascontiguousarray(rgb)).save(buffer, format="JPEG", quality=90)
+    return CompressedImage(header=header(t, frame), format="rgb8; jpeg compressed bgr8",
+                           data=np.frombuffer(buffer.getvalue(), np.uint8))
+
+
+def transform(t: float, parent: str, child: str, position, rotation: np.ndarray):
+    q = quat_xyzw(rotation)
+    return TransformStamped(
+        header=header(t, parent), child_frame_id=child,
+        transform=Transform(translation=Vector3(x=float(position[0]), y=float(position[1]), z=float(position[2])),
+                            rotation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3])))
+
+
+# realsense2_camera's fixed links: the colour sensor 15 mm along the camera link's y, and the
+# optical frame (z forward, x right, y down) turned from the link's x forward, z up.
+COLOUR_OFFSET = np.array([0.0, 0.015, 0.0])
+LINK_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def camera_transforms(run: Run, stamp0: float, layout: str) -> list:
+    """/tf_static: each optical frame from `world` (pegs), or the realsense chain (realsense)."""
+    out = []
+    for c in run.cameras:
+        optical = f"{c.name}_color_optical_frame"
+        if layout == "pegs":
+            out.append(transform(stamp0, "world", optical, c.position, c.rotation))
+            continue
+        # world_from_link = world_from_optical * (link_from_optical)^-1, colour frame offset by
+        # COLOUR_OFFSET in the link (no rotation between link and colour frame).
+        world_from_link_r = c.rotation @ LINK_FROM_OPTICAL.T
+        world_from_link_p = np.asarray(c.position) - world_from_link_r @ COLOUR_OFFSET
+        out.append(transform(stamp0, "world", f"{c.name}_link", world_from_link_p, world_from_link_r))
+        out.append(transform(stamp0, f"{c.name}_link", f"{c.name}_color_frame", COLOUR_OFFSET, np.eye(3)))
+        out.append(transform(stamp0, f"{c.name}_color_frame", optical, np.zeros(3), LINK_FROM_OPTICAL))
+    return out
+
+
+def write_bag(path: Path, run: Run, stamp0: float, depth_encoding: str = "32FC1", layout: str = "pegs",
+              storage: str = "mcap") -> None:
+    """The rosbag2 directory `path` in `layout` with `storage` (mcap or sqlite3)."""
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    realsense = layout == "realsense"
+    if realsense:
+        depth_encoding = "16UC1"
+    with Writer(path, version=9, storage_plugin=plugin) as w:
         def connect(topic, msgtype):
             return w.add_connection(topic, msgtype, typestore=TYPES)
 
@@ -81,25 +139,21 @@ def write_bag(path: Path, run: Run, stamp0: float, depth_encoding: str = "32FC1"
         joints = connect("/joint_states", "sensor_msgs/msg/JointState")
         per_camera = {}
         for c in run.cameras:
-            base = f"/{c.name}"
+            base = f"/camera/{c.name}"
             per_camera[c.name] = dict(
                 info=connect(f"{base}/color/camera_info", "sensor_msgs/msg/CameraInfo"),
-                rgb=connect(f"{base}/color/image_raw", "sensor_msgs/msg/Image"),
-                depth=connect(f"{base}/depth/image_raw", "sensor_msgs/msg/Image"),
-                mask=connect(f"{base}/mask/image_raw", "sensor_msgs/msg/Image"),
+                depth=connect(f"{base}/aligned_depth_to_color/image_raw", "sensor_msgs/msg/Image"),
             )
+            if realsense:
+                per_camera[c.name]["jpeg"] = connect(f"{base}/color/image_raw/compressed", "sensor_msgs/msg/CompressedImage")
+            else:
+                per_camera[c.name]["rgb"] = connect(f"{base}/color/image_raw", "sensor_msgs/msg/Image")
+                per_camera[c.name]["mask"] = connect(f"{base}/mask/image_raw", "sensor_msgs/msg/Image")
 
         def put(conn, t, msg, msgtype):
             w.write(conn, int(round((stamp0 + t) * 1e9)), TYPES.serialize_cdr(msg, msgtype))
 
-        transforms = []
-        for c in run.cameras:
-            q = quat_xyzw(c.rotation)
-            transforms.append(TransformStamped(
-                header=header(stamp0, "world"), child_frame_id=f"{c.name}_color_optical_frame",
-                transform=Transform(translation=Vector3(x=float(c.position[0]), y=float(c.position[1]), z=float(c.position[2])),
-                                    rotation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))))
-        put(tf, 0.0, TFMessage(transforms=transforms), "tf2_msgs/msg/TFMessage")
+        put(tf, 0.0, TFMessage(transforms=camera_transforms(run, stamp0, layout)), "tf2_msgs/msg/TFMessage")
         # Messages in time order, as a recorder receives them.
         events = [(t, 0, k) for k, (t, _) in enumerate(run.joint_states)]
         events += [(f.t, 1, k) for k, f in enumerate(run.frames)]
@@ -114,9 +168,12 @@ def write_bag(path: Path, run: Run, stamp0: float, depth_encoding: str = "32FC1"
                 optical = f"{c.name}_color_optical_frame"
                 conns = per_camera[c.name]
                 put(conns["info"], t, camera_info(stamp0 + t, optical, c), "sensor_msgs/msg/CameraInfo")
-                put(conns["rgb"], t, image(stamp0 + t, optical, frame.rgb[i], "rgb8", 3 * c.width), "sensor_msgs/msg/Image")
+                if realsense:
+                    put(conns["jpeg"], t, compressed(stamp0 + t, optical, frame.rgb[i]), "sensor_msgs/msg/CompressedImage")
+                else:
+                    put(conns["rgb"], t, image(stamp0 + t, optical, frame.rgb[i], "rgb8", 3 * c.width), "sensor_msgs/msg/Image")
+                    put(conns["mask"], t, image(stamp0 + t, optical, frame.labels[i], "mono8", c.width), "sensor_msgs/msg/Image")
                 put(conns["depth"], t, depth_image(stamp0 + t, optical, frame.depth[i], depth_encoding), "sensor_msgs/msg/Image")
-                put(conns["mask"], t, image(stamp0 + t, optical, frame.labels[i], "mono8", c.width), "sensor_msgs/msg/Image")
 
 
 def write_truth(out: Path, scene: Scene, run: Run, stamp0: float) -> None:
@@ -137,8 +194,9 @@ def write_truth(out: Path, scene: Scene, run: Run, stamp0: float) -> None:
     (out / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
 
 
-def write_config(out: Path, scene: Scene, urdf: Path) -> None:
-    """What a user knows: the table's friction, the objects' masses (as configured), the robot."""
+def write_config(out: Path, scene: Scene, urdf: Path, cameras: list[str]) -> None:
+    """What a user knows: the cameras, the table's friction, the objects' masses (as
+    configured), the robot."""
     objects = "\n".join(f"        - {{name: {o.name}, label: {o.label}, mass: {o.mass}, particle_radius: 0.005}}" for o in scene.objects)
     mu = scene.friction
     (out / "config.yaml").write_text(f"""pegs:
@@ -148,6 +206,8 @@ def write_config(out: Path, scene: Scene, urdf: Path) -> None:
       collisions: {{static_friction: {mu}, kinetic_friction: {mu}}}
     robot:
       urdf: {urdf}
+    node:
+      cameras: [{", ".join(cameras)}]
     scene:
       rgbd_objects:
 {objects}
