@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Start `pegs node` beside a Franka driver and three RealSense D455s (realsense2_camera with
-# camera_name cam0 / cam1 / cam2, colour aligned, rgb8). Camera extrinsics come from /tf_static
-# (world -> camN_color_optical_frame, e.g. from a hand-eye calibration publisher); joint states
-# from the Franka driver's /joint_states. Extra arguments go to the node, e.g.
+# camera_name cam0 / cam1 / cam2, align_depth.enable true). Camera extrinsics come from the tf
+# tree: the user publishes world -> camN_link on /tf_static (e.g. a hand-eye calibration), the
+# drivers publish camN_link -> ... -> camN_color_optical_frame; joint states from the Franka
+# driver's /joint_states. Extra arguments go to the node, e.g.
 #   franka_3xd455.sh --ros-args -p correct.gain:=1.0
 # Usage: franka_3xd455.sh [CONFIG.yaml] [-- node arguments]
 set -euo pipefail

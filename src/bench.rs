@@ -378,3 +378,163 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
         skipped,
     })
 }
+
+/// Memory and speed of replaying a long bag (`pegs bench bag`).
+#[derive(Debug, Serialize)]
+pub struct BagBench {
+    pub benchmark: &'static str,
+    pub scenario: &'static str,
+    pub width: u32,
+    pub height: u32,
+    pub seconds: f64,
+    pub bag_bytes: u64,
+    pub messages: usize,
+    pub write_s: f64,
+    pub replay_s: f64,
+    pub ticks: usize,
+    pub ms_per_tick: f64,
+    /// Peak resident memory of this process during the replay alone (VmHWM after resetting
+    /// it), MB; and before the replay began.
+    pub peak_rss_mb: f64,
+    pub rss_before_mb: f64,
+    pub tracking_mean_mm: f32,
+}
+
+/// Write an uncompressed rosbag2 bag of `seconds` of the resting box (a 1 s recording of it,
+/// looped with its stamps shifted: the box stays at rest, so tracking stays meaningful), then
+/// replay it and measure the replay's peak resident memory. The bag is left in `dir`.
+pub fn bag(seconds: f64, (width, height): (u32, u32), dir: &std::path::Path) -> Result<BagBench> {
+    use crate::config::Config;
+    use crate::msgs::{self, CameraInfo, Image, JointState, Time};
+    use crate::record::{self, RecordingWriter};
+    use crate::scenario::generate::{GenerateOptions, generate};
+    let scenario = "resting_box";
+    let short = dir.join("short");
+    let opts = GenerateOptions {
+        width,
+        height,
+        seconds: 1.0,
+        ..Default::default()
+    };
+    generate(scenario, &short, &opts)?;
+    let clock = Instant::now();
+    let (messages, problem) = record::read_messages(&short.join("recording"))?;
+    if let Some(p) = problem {
+        anyhow::bail!("the 1 s recording is damaged: {p}");
+    }
+    let period = messages.iter().map(|m| m.time).fold(0.0, f64::max) + 1.0 / 30.0;
+    let long = dir.join("long");
+    let mut w = RecordingWriter::create_with(&long, false)?;
+    let mut written = 0;
+    let loops = (seconds / period).ceil().max(1.0) as usize;
+    for k in 0..loops {
+        let shift = k as f64 * period;
+        for m in &messages {
+            let t = m.time + shift;
+            let stamp = |h: &mut crate::msgs::Header| {
+                h.stamp = Time::from_seconds(h.stamp.seconds() + shift)
+            };
+            match m.schema.as_str() {
+                "sensor_msgs/msg/Image" => {
+                    let mut i: Image = msgs::from_cdr(&m.data)?;
+                    stamp(&mut i.header);
+                    w.write(&m.topic, msgs::schema::image(), Time::from_seconds(t), &i)?;
+                }
+                "sensor_msgs/msg/CameraInfo" => {
+                    let mut i: CameraInfo = msgs::from_cdr(&m.data)?;
+                    stamp(&mut i.header);
+                    w.write(
+                        &m.topic,
+                        msgs::schema::camera_info(),
+                        Time::from_seconds(t),
+                        &i,
+                    )?;
+                }
+                "sensor_msgs/msg/JointState" => {
+                    let mut j: JointState = msgs::from_cdr(&m.data)?;
+                    stamp(&mut j.header);
+                    w.write(
+                        &m.topic,
+                        msgs::schema::joint_state(),
+                        Time::from_seconds(t),
+                        &j,
+                    )?;
+                }
+                "tf2_msgs/msg/TFMessage" if k == 0 => {
+                    w.write_raw(&m.topic, msgs::schema::tf_message(), t, &m.data)?;
+                }
+                _ => continue,
+            }
+            written += 1;
+        }
+    }
+    w.finish()?;
+    drop(messages);
+    // The ground truth looped the same way, beside the long bag.
+    let truth = std::fs::read_to_string(short.join("ground_truth.csv"))?;
+    let mut lines = truth.lines();
+    let mut looped = lines.next().unwrap_or_default().to_string() + "\n";
+    let rows: Vec<&str> = lines.collect();
+    for k in 0..loops {
+        for row in &rows {
+            if let Some((t, rest)) = row.split_once(',')
+                && let Ok(t) = t.parse::<f64>()
+            {
+                looped += &format!("{:.6},{rest}\n", t + k as f64 * period);
+            }
+        }
+    }
+    std::fs::write(dir.join("ground_truth.csv"), looped)?;
+    let write_s = clock.elapsed().as_secs_f64();
+    let bag_bytes = std::fs::read_dir(&long)?
+        .filter_map(|f| f.ok()?.metadata().ok())
+        .map(|m| m.len())
+        .sum();
+    let config = Config::load(&short.join("config.yaml"))?;
+    let rss_before_mb = memory_mb("VmRSS");
+    // Writing 5 to clear_refs resets the peak (VmHWM) to the current resident size.
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+    let clock = Instant::now();
+    let opts = crate::replay::ReplayOptions {
+        progress: false,
+        ..Default::default()
+    };
+    let metrics = crate::replay::run(&long, &config, &dir.join("out"), opts)?;
+    let replay_s = clock.elapsed().as_secs_f64();
+    Ok(BagBench {
+        benchmark: "bag",
+        scenario,
+        width,
+        height,
+        seconds: loops as f64 * period,
+        bag_bytes,
+        messages: written,
+        write_s,
+        replay_s,
+        ticks: metrics.ticks,
+        ms_per_tick: metrics.wall_ms_per_tick,
+        peak_rss_mb: memory_mb("VmHWM"),
+        rss_before_mb,
+        tracking_mean_mm: metrics
+            .tracking_error
+            .values()
+            .map(|e| e.mean_mm)
+            .fold(0.0, f32::max),
+    })
+}
+
+/// A `/proc/self/status` memory figure in MB (NaN where there is none).
+fn memory_mb(field: &str) -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find_map(|l| {
+            l.strip_prefix(field)?
+                .trim_start_matches(':')
+                .split_whitespace()
+                .next()?
+                .parse::<f64>()
+                .ok()
+        })
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}

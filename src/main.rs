@@ -3,7 +3,7 @@
 use anyhow::Result;
 use clap::{Args, Parser, Subcommand};
 use pegs::config::Config;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
 #[command(
@@ -30,9 +30,14 @@ enum Command {
         #[command(subcommand)]
         what: ScenarioCommand,
     },
-    /// Run predict/correct on a recording (an MCAP file or a rosbag2 directory with MCAP storage)
-    /// and write objects.csv and metrics.json.
+    /// Run predict/correct on a recording (a rosbag2 directory with MCAP or SQLite3 storage, or
+    /// an .mcap / .db3 file) and write objects.csv and metrics.json.
     Replay(ReplayArgs),
+    /// Inspect rosbag2 bags.
+    Bag {
+        #[command(subcommand)]
+        what: BagCommand,
+    },
     /// Find the physics the model misses: locate where open-loop predictions fail, name the
     /// effect that explains it with its parameter, rerun with it and compare. Writes
     /// DIR/report.md, DIR/report.json, DIR/model.yaml (for `replay --model`), plots and both replays.
@@ -49,6 +54,21 @@ enum Command {
     /// Reproduce the supplementary's ablations on synthetic scenarios: PNG plots of tracking
     /// error over time per ablation and OUT/summary.md. Lists are comma-separated.
     Ablate(AblateArgs),
+}
+
+#[derive(Subcommand)]
+enum BagCommand {
+    /// What pegs will use from a bag: cameras found by the node.* templates (encodings, rates,
+    /// tf chains), depth and masks, joint names matched against the configured URDF, warnings.
+    Info {
+        bag: PathBuf,
+        /// The configuration a replay would use (its node templates and robot); defaults if none.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Subcommand)]
@@ -117,6 +137,25 @@ enum BenchTarget {
     /// Time full predict + correct ticks of the pushed T-block scenario, 3 cameras at 320x180
     /// and 640x360, per backend.
     Tick(TickBenchArgs),
+    /// Write an uncompressed rosbag2 bag of the resting box (3 cameras, colour, depth, masks,
+    /// joint states) of --seconds, replay it and report its size and the replay's peak memory.
+    Bag(BagBenchArgs),
+}
+
+#[derive(Args)]
+struct BagBenchArgs {
+    #[arg(long)]
+    pub json: bool,
+    /// Seconds of recording (at 640x360 about 150 MB per second).
+    #[arg(long, default_value_t = 30.0)]
+    pub seconds: f64,
+    #[arg(long, default_value_t = 640)]
+    pub width: u32,
+    #[arg(long, default_value_t = 360)]
+    pub height: u32,
+    /// Where the bag is written (kept); a temporary folder, removed after, when not given.
+    #[arg(long)]
+    pub dir: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -349,6 +388,9 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Demo(a) => demo(a),
         Command::Replay(a) => replay(a),
+        Command::Bag {
+            what: BagCommand::Info { bag, config, json },
+        } => bag_info(&bag, config.as_deref(), json),
         Command::Diagnose(a) => diagnose(a),
         Command::Node(a) => node(a),
         Command::Scenario {
@@ -376,6 +418,9 @@ fn main() -> Result<()> {
         Command::Bench {
             what: BenchTarget::Tick(a),
         } => bench_tick(a),
+        Command::Bench {
+            what: BenchTarget::Bag(a),
+        } => bench_bag(a),
     }
 }
 
@@ -429,6 +474,20 @@ fn demo(a: DemoArgs) -> Result<()> {
             if v.passed() { "passed" } else { "failed" }
         );
         println!("wrote {}", out.join("story.md").display());
+    }
+    Ok(())
+}
+
+fn bag_info(bag: &Path, config: Option<&Path>, json: bool) -> Result<()> {
+    let config = load_config(&config.map(Path::to_path_buf))?;
+    let info = pegs::replay::info(bag, &config)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&info)?);
+    } else {
+        print!("{info}");
+    }
+    if info.usable_cameras.is_empty() {
+        anyhow::bail!("no usable camera in {}", bag.display());
     }
     Ok(())
 }
@@ -790,6 +849,41 @@ fn bench_render(a: RenderBenchArgs) -> Result<()> {
                 r.forward_backward_ms_per_camera
             );
         }
+    }
+    Ok(())
+}
+
+fn bench_bag(a: BagBenchArgs) -> Result<()> {
+    let temporary = a.dir.is_none();
+    let dir = a.dir.unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("pegs-bench-bag-{}", std::process::id()))
+    });
+    std::fs::create_dir_all(&dir)?;
+    let report = pegs::bench::bag(a.seconds, (a.width, a.height), &dir);
+    if temporary {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    let r = report?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "{:.1} s bag of {}x{} ({:.2} GB, {} messages, written in {:.0} s): replayed {} ticks in \
+             {:.0} s ({:.1} ms per tick), peak resident memory {:.0} MB (before {:.0} MB), tracking \
+             {:.2} mm",
+            r.seconds,
+            r.width,
+            r.height,
+            r.bag_bytes as f64 / 1e9,
+            r.messages,
+            r.write_s,
+            r.ticks,
+            r.replay_s,
+            r.ms_per_tick,
+            r.peak_rss_mb,
+            r.rss_before_mb,
+            r.tracking_mean_mm
+        );
     }
     Ok(())
 }

@@ -113,6 +113,43 @@ fn bench_physics_prints_json_with_the_documented_scenes() {
     );
 }
 
+/// The long-bag benchmark writes an uncompressed rosbag2 bag of the looped resting box and
+/// replays it: the bag holds every frame (about 130 kB per 160x90 frame set), the replay ticks
+/// through all of it and keeps the box, and the peak memory is measured.
+#[test]
+fn bench_bag_replays_the_bag_it_writes_and_reports_its_memory() {
+    let o = pegs()
+        .args([
+            "bench",
+            "bag",
+            "--json",
+            "--seconds",
+            "2",
+            "--width",
+            "160",
+            "--height",
+            "90",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("stdout is JSON");
+    let seconds = v["seconds"].as_f64().unwrap();
+    assert!(seconds >= 2.0, "{v}");
+    let frames = (seconds * 30.0) as u64;
+    assert!(
+        v["bag_bytes"].as_u64().unwrap() > frames * 3 * 160 * 90 * 3,
+        "{v}"
+    );
+    assert!(v["ticks"].as_u64().unwrap() >= frames - 2, "{v}");
+    assert!(v["tracking_mean_mm"].as_f64().unwrap() < 5.0, "{v}");
+    let peak = v["peak_rss_mb"].as_f64().unwrap();
+    assert!(
+        peak > 0.0 && peak >= v["rss_before_mb"].as_f64().unwrap() * 0.5,
+        "{v}"
+    );
+}
+
 #[test]
 fn a_bad_config_is_a_clear_error_not_a_panic() {
     let dir = temp_dir("badcfg");

@@ -156,10 +156,21 @@ fn an_object_pushed_in_another_engines_recording_is_tracked_through_the_push() {
 #[ignore = "slow: full tier (tests/run_all.sh)"]
 fn a_realsense_rig_bag_is_tracked_as_well_as_pegs_own_layout() {
     let (kind, seed) = ("control_pushed", 12);
-    let own = error_mm(&replay(&record(kind, seed, None, &[]), &[]), "obj1", "mean_mm");
+    let own = error_mm(
+        &replay(&record(kind, seed, None, &[]), &[]),
+        "obj1",
+        "mean_mm",
+    );
     let epoch = "1763900000.25";
     for storage in ["mcap", "sqlite3"] {
-        let args = ["--layout", "realsense", "--storage", storage, "--stamp0", epoch];
+        let args = [
+            "--layout",
+            "realsense",
+            "--storage",
+            storage,
+            "--stamp0",
+            epoch,
+        ];
         let folder = record_as(storage, kind, seed, None, &args);
         let bag = folder.join("bag");
         let has = |ext: &str| {
@@ -168,25 +179,50 @@ fn a_realsense_rig_bag_is_tracked_as_well_as_pegs_own_layout() {
                 .any(|f| f.unwrap().path().extension().is_some_and(|e| e == ext))
         };
         assert!(has(if storage == "mcap" { "mcap" } else { "db3" }));
+        let config = folder.join("config.yaml");
+        let info = run(Command::new(env!("CARGO_BIN_EXE_pegs")).args([
+            "bag",
+            "info",
+            bag.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+            "--json",
+        ]));
+        let info: serde_json::Value = serde_json::from_str(&info).unwrap();
+        assert_eq!(info["storage"], storage);
+        assert_eq!(info["usable_cameras"].as_array().unwrap().len(), 3);
+        assert_eq!(info["cameras"][0]["tf_chain"].as_array().unwrap().len(), 4);
+        assert_eq!(info["cameras"][0]["depth"], "16UC1");
+        assert_eq!(info["urdf_joints_matched"].as_array().unwrap().len(), 7);
         let m = replay(&folder, &[]);
         let mean = error_mm(&m, "obj1", "mean_mm");
         println!("{storage}: mean {mean:.2} mm (pegs's layout {own:.2} mm)");
         assert_eq!(m["cameras"].as_array().unwrap().len(), 3, "{m}");
         assert_eq!(m["rejected_images"], 0, "{m}");
-        assert_eq!(m["init"]["labels_from_clusters"], true, "no masks: clusters");
+        assert_eq!(
+            m["init"]["labels_from_clusters"], true,
+            "no masks: clusters"
+        );
         assert!(
             mean < (own * 1.25).max(own + 2.0),
             "{storage}: {mean:.2} mm against {own:.2} mm from pegs's layout"
         );
         let out = folder.join("diagnosis");
-        let config = folder.join("config.yaml");
-        let args = ["diagnose", bag.to_str().unwrap(), "--config", config.to_str().unwrap()];
+        let args = [
+            "diagnose",
+            bag.to_str().unwrap(),
+            "--config",
+            config.to_str().unwrap(),
+        ];
         run(Command::new(env!("CARGO_BIN_EXE_pegs"))
             .args(args)
             .args(["--out", out.to_str().unwrap()]));
         let report = json(&out.join("report.json"));
         assert_eq!(report["object"], "obj1");
-        assert_eq!(report["effect"], "none", "a control names nothing: {report}");
+        assert_eq!(
+            report["effect"], "none",
+            "a control names nothing: {report}"
+        );
     }
 }
 

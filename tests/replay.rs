@@ -345,3 +345,167 @@ fn the_ablation_sweep_writes_plots_and_a_summary_row_per_setting() {
         mean("gain 1.5")
     );
 }
+
+/// A recording whose cam0 hangs from a frame that `/tf` moves (a wrist camera): its pose is
+/// looked up at each image's stamp through the chain world -> wrist_mount (/tf, 10 Hz) ->
+/// optical frame (/tf_static). With the true pose on /tf the replay tracks exactly as with the
+/// static transform; when /tf stops, cam0's later images are refused, saying why, and `pegs bag
+/// info` shows the chain and that the camera moves.
+#[test]
+fn a_camera_moved_by_tf_is_posed_at_each_image_stamp() {
+    use pegs::msgs::{Header, TfMessage, Time, schema};
+    let scn = scratch("wrist");
+    let scn_s = scn.to_str().unwrap();
+    let args = ["--width", "160", "--height", "90", "--seconds", "1.5"];
+    pegs(
+        &[
+            &["scenario", "generate", "pushed_box", "--out", scn_s][..],
+            &args,
+        ]
+        .concat(),
+    );
+    let (messages, _) = pegs::record::read_messages(&scn.join("recording")).unwrap();
+    let optical = pegs::record::optical_frame("cam0");
+    let write = |path: &Path, tf_until: f64| {
+        let mut w = pegs::record::RecordingWriter::create(path).unwrap();
+        let mut mount = None;
+        for m in &messages {
+            if m.topic != "/tf_static" {
+                continue;
+            }
+            let mut tf: TfMessage = pegs::msgs::from_cdr(&m.data).unwrap();
+            for t in &mut tf.transforms {
+                if t.child_frame_id == optical {
+                    // world -> wrist_mount carries the pose; wrist_mount -> optical is identity.
+                    mount = Some(t.clone());
+                    t.header.frame_id = "wrist_mount".into();
+                    t.transform = Default::default();
+                    t.transform.rotation.w = 1.0;
+                }
+            }
+            w.write(
+                m.topic.as_str(),
+                schema::tf_message(),
+                Time::from_seconds(m.time),
+                &tf,
+            )
+            .unwrap();
+        }
+        let mut mount = mount.expect("cam0 on /tf_static");
+        mount.child_frame_id = "wrist_mount".into();
+        let mut k = 0;
+        for m in &messages {
+            while (k as f64) * 0.1 <= m.time.min(tf_until) {
+                mount.header = Header {
+                    stamp: Time::from_seconds(k as f64 * 0.1),
+                    frame_id: "world".into(),
+                };
+                let tf = TfMessage {
+                    transforms: vec![mount.clone()],
+                };
+                w.write("/tf", schema::tf_message(), mount.header.stamp, &tf)
+                    .unwrap();
+                k += 1;
+            }
+            if m.topic != "/tf_static" {
+                let schema = [
+                    schema::image(),
+                    schema::camera_info(),
+                    schema::joint_state(),
+                ]
+                .into_iter()
+                .find(|s| s.0 == m.schema)
+                .unwrap();
+                w.write_raw(&m.topic, schema, m.time, &m.data).unwrap();
+            }
+        }
+        w.finish().unwrap();
+    };
+    let config = scn.join("config.yaml");
+    let base = replay(&scn.join("recording"), &config, &scratch("wrist-base"), &[]);
+    let moving = scn.join("moving");
+    write(&moving, 10.0);
+    let m = replay(&moving, &config, &scratch("wrist-moving"), &[]);
+    let mean = |m: &serde_json::Value| m["tracking_error"]["box"]["mean_mm"].as_f64().unwrap();
+    assert_eq!(m["rejected_images"], 0, "{m}");
+    assert!(
+        (mean(&m) - mean(&base)).abs() < 0.05,
+        "posed from /tf {} mm, from /tf_static {} mm",
+        mean(&m),
+        mean(&base)
+    );
+    let info = pegs(&["bag", "info", moving.to_str().unwrap(), "--json"]);
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let cam0 = &info["cameras"][0];
+    assert_eq!(cam0["name"], "cam0");
+    assert_eq!(cam0["moving"], true);
+    assert_eq!(
+        cam0["tf_chain"],
+        serde_json::json!(["world", "wrist_mount", optical])
+    );
+    assert_eq!(info["cameras"][1]["moving"], false);
+    let stopped = scn.join("tf_stops");
+    write(&stopped, 0.7);
+    let m = replay(&stopped, &config, &scratch("wrist-stops"), &[]);
+    assert!(m["rejected_images"].as_u64().unwrap() > 10, "{m}");
+    let said = m["warnings"].as_array().unwrap().iter().any(|w| {
+        let w = w.as_str().unwrap();
+        w.contains("camera cam0") && w.contains("no /tf world -> wrist_mount")
+    });
+    assert!(said, "{}", m["warnings"]);
+    assert!(m["stale_camera_ticks"]["cam0"].as_u64().unwrap() > 0);
+}
+
+/// `pegs bag info` on a recording without the transforms its cameras need: each camera is
+/// listed with why it cannot be used, and the command fails saying there is no usable camera.
+#[test]
+fn bag_info_names_what_a_replay_would_use_and_what_is_missing() {
+    let scn = scratch("info");
+    let scn_s = scn.to_str().unwrap();
+    let args = ["--width", "160", "--height", "90", "--seconds", "0.5"];
+    pegs(
+        &[
+            &["scenario", "generate", "resting_box", "--out", scn_s][..],
+            &args,
+        ]
+        .concat(),
+    );
+    let rec = scn.join("recording");
+    let info = pegs(&["bag", "info", rec.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&info.stdout);
+    for part in [
+        "mcap storage",
+        "cameras (3 usable)",
+        "/camera/cam1/color/image_raw [rgb8]",
+        "tf world -> cam1_color_optical_frame",
+        "depth 32FC1, masks mono8",
+    ] {
+        assert!(text.contains(part), "'{part}' missing from:\n{text}");
+    }
+    let (messages, _) = pegs::record::read_messages(&rec).unwrap();
+    let bare = scn.join("no_tf");
+    let mut w = pegs::record::RecordingWriter::create(&bare).unwrap();
+    for m in messages.iter().filter(|m| m.topic != "/tf_static") {
+        let schema = [
+            pegs::msgs::schema::image(),
+            pegs::msgs::schema::camera_info(),
+            pegs::msgs::schema::joint_state(),
+        ]
+        .into_iter()
+        .find(|s| s.0 == m.schema)
+        .unwrap();
+        w.write_raw(&m.topic, schema, m.time, &m.data).unwrap();
+    }
+    w.finish().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_pegs"))
+        .args(["bag", "info", bare.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("cam0: no tf chain from 'world' to 'cam0_color_optical_frame'"),
+        "{text}"
+    );
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no usable camera"));
+}

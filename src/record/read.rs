@@ -27,7 +27,7 @@ enum Storage {
         read: usize,
     },
     Sqlite {
-        reader: SqliteReader,
+        reader: Box<SqliteReader>,
         path: PathBuf,
         read: usize,
     },
@@ -84,7 +84,7 @@ impl BagReader {
         };
         self.current = Some(if self.storage == "sqlite3" {
             Storage::Sqlite {
-                reader: SqliteReader::open(&path)?,
+                reader: Box::new(SqliteReader::open(&path)?),
                 path,
                 read: 0,
             }

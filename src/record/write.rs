@@ -151,8 +151,13 @@ pub struct RecordingWriter {
 
 impl RecordingWriter {
     /// Create `path`: a lone MCAP file if it ends in `.mcap`, otherwise a rosbag2 directory
-    /// (replaced if it holds an earlier recording).
+    /// (replaced if it holds an earlier recording). Chunks are zstd-compressed.
     pub fn create(path: &Path) -> Result<Self> {
+        Self::create_with(path, true)
+    }
+
+    /// As `create`, with chunk compression or without (as `ros2 bag record` writes by default).
+    pub fn create_with(path: &Path, compress: bool) -> Result<Self> {
         let is_file = path.extension().is_some_and(|e| e == "mcap");
         let (file_path, bag) = if is_file {
             (path.to_path_buf(), None)
@@ -173,7 +178,7 @@ impl RecordingWriter {
             .with_context(|| format!("cannot create {}", file_path.display()))?;
         let writer = mcap::WriteOptions::new()
             .profile("ros2")
-            .compression(Some(mcap::Compression::Zstd))
+            .compression(compress.then_some(mcap::Compression::Zstd))
             .create(BufWriter::new(file))
             .context("cannot start the MCAP file")?;
         Ok(Self {

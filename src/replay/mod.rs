@@ -9,14 +9,17 @@
 //! - `recording`: the recording surveyed (cameras by the `node` templates, tf, joint states) and
 //!   its first frames read.
 //! - `start`: the world at the start (a scenario, or initialised from the first frames).
+//! - `info`: `pegs bag info`, what a replay would use from a bag.
 //! - `feed`: streams the colour images to `inputs::Inputs` as the clock passes their stamps.
 
 mod feed;
-pub mod recording;
+mod info;
+mod recording;
 pub mod silhouette;
 mod start;
 mod truth;
 
+pub use info::{BagInfo, info};
 pub use truth::stats;
 
 use crate::config::Config;
@@ -219,7 +222,11 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     observers.start(&tracker)?;
     let mut feed = Feed::new(&streams, &tracker)?;
     let progress = if opts.progress {
-        indicatif::ProgressBar::new(ticks as u64)
+        let style = indicatif::ProgressStyle::with_template(
+            "{wide_bar} {pos}/{len} ticks ({per_sec}), {elapsed} elapsed, {eta} left",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+        indicatif::ProgressBar::new(ticks as u64).with_style(style)
     } else {
         indicatif::ProgressBar::hidden()
     };
