@@ -301,6 +301,8 @@ pub struct TickTiming {
     pub correct_ms: f64,
     pub tick_ms: f64,
     pub ticks_per_second: f64,
+    /// Median milliseconds per tick of each correction stage (see `CorrectStats::stage_ms`).
+    pub correct_stages_ms: std::collections::BTreeMap<String, f64>,
 }
 
 #[derive(Debug, Serialize)]
@@ -345,6 +347,7 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
                 }
             };
             let (mut predict, mut correct) = (Vec::new(), Vec::new());
+            let mut stages: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
             let dt = config.physics.dt as f64;
             for k in 0..ticks + 2 {
                 truth.predict()?;
@@ -354,6 +357,9 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
                 if k >= 2 {
                     predict.push(report.predict_ms);
                     correct.push(report.correct_ms);
+                    for (stage, ms) in report.correction.iter().flat_map(|c| &c.stage_ms) {
+                        stages.entry(stage.clone()).or_default().push(*ms);
+                    }
                 }
             }
             let (p, c) = (median(predict), median(correct));
@@ -366,6 +372,7 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
                 correct_ms: c,
                 tick_ms: p + c,
                 ticks_per_second: 1e3 / (p + c),
+                correct_stages_ms: stages.into_iter().map(|(k, v)| (k, median(v))).collect(),
             });
         }
     }

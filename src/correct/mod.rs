@@ -131,10 +131,11 @@ pub struct View<'a> {
 /// What one correction did.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct CorrectStats {
-    /// Photometric loss (mean squared error over the windows, summed over cameras) before and
-    /// after the Adam iterations.
+    /// Photometric loss (mean squared error over the windows, summed over cameras) before the
+    /// Adam iterations, and at the start of the last one (a render after the last update would
+    /// cost a forward pass per camera and change nothing the tick does).
     pub loss_before: f32,
-    pub loss_after: f32,
+    pub loss_last: f32,
     /// Pixels left out as unexplained occluders (summed over the windows).
     pub occluded_pixels: usize,
     /// Gaussians whose displacement exceeded the threshold and produced a force.
@@ -143,6 +144,17 @@ pub struct CorrectStats {
     pub force: Vec<Vec3>,
     /// Total visual torque per shape about its centroid (N m), indexed by shape id.
     pub torque: Vec<Vec3>,
+    /// Milliseconds per stage: `setup` (windows, crops, occluder weights), `forward`,
+    /// `backward`, `gather` (gradients to the free Gaussians), `adam`, `forces`, and the
+    /// renderer's own stages (`render.project`, ...) where it measures them.
+    pub stage_ms: std::collections::BTreeMap<String, f64>,
+}
+
+/// Add the time since `clock` to `stage` of `stats` and restart the clock.
+fn lap(stats: &mut CorrectStats, stage: &str, clock: &mut std::time::Instant) {
+    let now = std::time::Instant::now();
+    *stats.stage_ms.entry(stage.to_string()).or_insert(0.0) += (now - *clock).as_secs_f64() * 1e3;
+    *clock = now;
 }
 
 pub struct Corrector {
@@ -172,6 +184,7 @@ impl Corrector {
     /// Optimise the tracked objects' Gaussians against `views` and add the resulting visual
     /// forces to the world's particles (they act in the next predict step). `dt` is the tick.
     pub fn correct(&mut self, world: &mut World, views: &[View], dt: f32) -> Result<CorrectStats> {
+        let mut clock = std::time::Instant::now();
         let mut stats = CorrectStats {
             force: vec![Vec3::ZERO; world.shapes.len()],
             torque: vec![Vec3::ZERO; world.shapes.len()],
@@ -265,7 +278,9 @@ impl Corrector {
             a.reset(len);
         }
         let c = self.config.clone();
-        for it in 0..=c.iterations {
+        self.renderer.take_stage_ms();
+        lap(&mut stats, "setup", &mut clock);
+        for it in 0..c.iterations {
             for (k, &i) in free.iter().enumerate() {
                 cloud.mean[i] = Vec3::from_slice(&means[3 * k..]);
                 cloud.rotation[i] = Vec4::from_slice(&rots[4 * k..]);
@@ -286,6 +301,7 @@ impl Corrector {
                     continue;
                 }
                 let out = self.renderer.forward(&cloud, &view.camera, *window)?;
+                lap(&mut stats, "forward", &mut clock);
                 let scale = 1.0 / (3.0 * window.pixels() as f32);
                 loss += out
                     .colour
@@ -295,9 +311,6 @@ impl Corrector {
                     .map(|((a, b), w)| w * (*a - *b).length_squared())
                     .sum::<f32>()
                     * scale;
-                if it == c.iterations {
-                    continue; // last pass only measures the loss after the updates
-                }
                 let d = PixelGrads {
                     colour: out
                         .colour
@@ -309,6 +322,7 @@ impl Corrector {
                     ..Default::default()
                 };
                 let g = self.renderer.backward(&cloud, &d)?;
+                lap(&mut stats, "backward", &mut clock);
                 for (k, &i) in free.iter().enumerate() {
                     for j in 0..3 {
                         gm[3 * k + j] += g.mean[i][j];
@@ -319,14 +333,12 @@ impl Corrector {
                     }
                     go[k] += g.opacity_logit[i];
                 }
+                lap(&mut stats, "gather", &mut clock);
             }
             if it == 0 {
                 stats.loss_before = loss;
             }
-            if it == c.iterations {
-                stats.loss_after = loss;
-                break;
-            }
+            stats.loss_last = loss;
             self.adam[0].step(&mut means, &gm, c.lr_mean);
             if c.lr_rotation > 0.0 {
                 self.adam[1].step(&mut rots, &gr, c.lr_rotation);
@@ -337,6 +349,10 @@ impl Corrector {
             if c.lr_opacity > 0.0 {
                 self.adam[3].step(&mut ops, &go, c.lr_opacity);
             }
+            lap(&mut stats, "adam", &mut clock);
+        }
+        for (stage, ms) in self.renderer.take_stage_ms() {
+            stats.stage_ms.insert(format!("render.{stage}"), ms);
         }
         // Displacements become forces on the parent particles.
         if self.previous.len() != cloud.len() {
@@ -376,6 +392,7 @@ impl Corrector {
         for (ext, f) in world.particles.external_force.iter_mut().zip(&forces) {
             *ext += *f;
         }
+        lap(&mut stats, "forces", &mut clock);
         Ok(stats)
     }
 }

@@ -42,6 +42,9 @@ struct Frame {
     tiles: (u32, u32),
     /// Gaussian indices sorted by (tile, depth, index); `ranges[t]` is tile t's slice.
     order: Vec<u32>,
+    /// The projected Gaussians in `order`, contiguous per tile so both passes read them in
+    /// sequence.
+    sorted: Vec<Projected>,
     ranges: Vec<(u32, u32)>,
     /// Per window pixel: transmittance after compositing, and the exclusive end of the entries of
     /// its tile list that were processed.
@@ -52,6 +55,19 @@ struct Frame {
 pub struct CpuRenderer {
     pub settings: RenderSettings,
     frame: Option<Frame>,
+    /// Milliseconds per stage since last taken (`Renderer::take_stage_ms`).
+    pub stage_ms: std::collections::BTreeMap<&'static str, f64>,
+}
+
+/// Add the time since `clock` to `stage` and restart the clock.
+fn lap(
+    stage_ms: &mut std::collections::BTreeMap<&'static str, f64>,
+    stage: &'static str,
+    clock: &mut std::time::Instant,
+) {
+    let now = std::time::Instant::now();
+    *stage_ms.entry(stage).or_insert(0.0) += (now - *clock).as_secs_f64() * 1e3;
+    *clock = now;
 }
 
 /// Per-pixel compositing outcome.
@@ -79,17 +95,14 @@ fn evaluate(g: &Projected, p: Vec2, s: &RenderSettings) -> Option<(f32, f32, Vec
     Some((alpha, gauss, d))
 }
 
-fn composite(list: &[u32], projected: &[Option<Projected>], p: Vec2, s: &RenderSettings) -> Pixel {
+fn composite(list: &[Projected], p: Vec2, s: &RenderSettings) -> Pixel {
     let mut out = Pixel {
         colour: Vec3::ZERO,
         depth: 0.0,
         t: 1.0,
         last: 0,
     };
-    for (k, &gi) in list.iter().enumerate() {
-        let Some(g) = &projected[gi as usize] else {
-            continue;
-        };
+    for (k, g) in list.iter().enumerate() {
         let Some((alpha, _, _)) = evaluate(g, p, s) else {
             continue;
         };
@@ -110,11 +123,13 @@ impl CpuRenderer {
         Self {
             settings,
             frame: None,
+            stage_ms: Default::default(),
         }
     }
 
     /// Render `cloud` into `camera` over `roi` (clamped to the image).
     pub fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi) -> RenderOutput {
+        let mut clock = std::time::Instant::now();
         let s = &self.settings;
         let roi = roi.clamped(camera);
         // Gaussians whose conservative footprint misses the window are culled before the full
@@ -135,6 +150,8 @@ impl CpuRenderer {
                 project::project(&g, camera, s)
             })
             .collect();
+        lap(&mut self.stage_ms, "project", &mut clock);
+        let s = &self.settings;
         let tile = s.tile.max(1);
         let tile_origin = (roi.x0 / tile, roi.y0 / tile);
         let tiles = if roi.pixels() == 0 {
@@ -186,6 +203,12 @@ impl CpuRenderer {
             *range = (start as u32, k as u32);
         }
         let order: Vec<u32> = keys.iter().map(|k| k.1).collect();
+        // Only Gaussians that projected were binned.
+        let sorted: Vec<Projected> = order
+            .iter()
+            .map(|&i| projected[i as usize].unwrap_or_default())
+            .collect();
+        lap(&mut self.stage_ms, "sort", &mut clock);
 
         // Composite, one band of tile rows per task.
         let width = roi.width() as usize;
@@ -212,8 +235,7 @@ impl CpuRenderer {
                         let tx = x / tile - tile_origin.0;
                         let (a, b) = ranges[(*ty as u32 * tiles.0 + tx) as usize];
                         let px = composite(
-                            &order[a as usize..b as usize],
-                            &projected,
+                            &sorted[a as usize..b as usize],
                             Vec2::new(x as f32 + 0.5, y as f32 + 0.5),
                             s,
                         );
@@ -226,6 +248,7 @@ impl CpuRenderer {
                     }
                 }
             });
+        lap(&mut self.stage_ms, "rasterise", &mut clock);
         self.frame = Some(Frame {
             camera: *camera,
             roi,
@@ -233,6 +256,7 @@ impl CpuRenderer {
             tile_origin,
             tiles,
             order,
+            sorted,
             ranges,
             final_t,
             last,
@@ -247,7 +271,8 @@ impl CpuRenderer {
 
     /// Gradients of a loss with respect to `cloud`, given its gradients with respect to the images
     /// of the last `forward` (which must have rendered this same cloud).
-    pub fn backward(&self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads> {
+    pub fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads> {
+        let clock = std::time::Instant::now();
         let Some(f) = &self.frame else {
             bail!("backward called before forward")
         };
@@ -303,11 +328,10 @@ impl CpuRenderer {
                             alpha: d_image.alpha.get(i).copied().unwrap_or(0.0),
                             depth: d_image.depth.get(i).copied().unwrap_or(0.0),
                         };
-                        let list = &f.order[a as usize..a as usize + f.last[i] as usize];
+                        let list = &f.sorted[a as usize..a as usize + f.last[i] as usize];
                         let offset = a as usize - band_start;
                         backward_pixel(
                             list,
-                            &f.projected,
                             Vec2::new(x as f32 + 0.5, y as f32 + 0.5),
                             f.final_t[i],
                             &grads,
@@ -317,6 +341,7 @@ impl CpuRenderer {
                     }
                 }
             });
+        let pixels_ms = clock.elapsed().as_secs_f64() * 1e3;
         // Sum partials per Gaussian in list order (fixed), then chain through the projection.
         let mut per_gaussian = vec![ProjectedGrad::default(); cloud.len()];
         let mut touched = vec![false; cloud.len()];
@@ -349,6 +374,9 @@ impl CpuRenderer {
             out.opacity_logit[i] = g.opacity_logit;
             out.colour[i] = g.colour;
         }
+        *self.stage_ms.entry("backward_pixels").or_insert(0.0) += pixels_ms;
+        let total = clock.elapsed().as_secs_f64() * 1e3;
+        *self.stage_ms.entry("backward_project").or_insert(0.0) += total - pixels_ms;
         Ok(out)
     }
 }
@@ -363,8 +391,7 @@ struct PixelUpstream {
 /// to the transmittance just after it (`behind`), `d out / d alpha_i = T_i (v_i - behind_i)` for
 /// every channel: colour (v = c, background behind the last), alpha (v = 1, 0 behind) and depth.
 fn backward_pixel(
-    list: &[u32],
-    projected: &[Option<Projected>],
+    list: &[Projected],
     p: Vec2,
     final_t: f32,
     up: &PixelUpstream,
@@ -375,10 +402,7 @@ fn backward_pixel(
     let mut behind_colour = s.background;
     let mut behind_alpha = 0.0f32;
     let mut behind_depth = 0.0f32;
-    for k in (0..list.len()).rev() {
-        let Some(g) = &projected[list[k] as usize] else {
-            continue;
-        };
+    for (k, g) in list.iter().enumerate().rev() {
         let Some((alpha, gauss, d)) = evaluate(g, p, s) else {
             continue;
         };

@@ -36,6 +36,11 @@ pub trait Renderer {
     fn forward(&mut self, cloud: &GaussianCloud, camera: &Camera, roi: Roi)
     -> Result<RenderOutput>;
     fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads>;
+    /// Milliseconds spent per internal stage since the last call (e.g. project, sort, rasterise),
+    /// for benchmarks; empty where a backend does not measure them.
+    fn take_stage_ms(&mut self) -> Vec<(&'static str, f64)> {
+        Vec::new()
+    }
 }
 
 /// Which backend renders.
@@ -71,6 +76,9 @@ impl Renderer for cpu::CpuRenderer {
     }
     fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads> {
         cpu::CpuRenderer::backward(self, cloud, d_image)
+    }
+    fn take_stage_ms(&mut self) -> Vec<(&'static str, f64)> {
+        std::mem::take(&mut self.stage_ms).into_iter().collect()
     }
 }
 
