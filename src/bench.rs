@@ -412,7 +412,7 @@ pub struct BagBench {
 /// replay it and measure the replay's peak resident memory. The bag is left in `dir`.
 pub fn bag(seconds: f64, (width, height): (u32, u32), dir: &std::path::Path) -> Result<BagBench> {
     use crate::config::Config;
-    use crate::msgs::{self, CameraInfo, Image, JointState, Time};
+    use crate::msgs::{self, CameraInfo, Image, JointState};
     use crate::record::{self, RecordingWriter};
     use crate::scenario::generate::{GenerateOptions, generate};
     let scenario = "resting_box";
@@ -438,40 +438,19 @@ pub fn bag(seconds: f64, (width, height): (u32, u32), dir: &std::path::Path) -> 
         let shift = k as f64 * period;
         for m in &messages {
             let t = m.time + shift;
-            let stamp = |h: &mut crate::msgs::Header| {
-                h.stamp = Time::from_seconds(h.stamp.seconds() + shift)
-            };
-            match m.schema.as_str() {
-                "sensor_msgs/msg/Image" => {
-                    let mut i: Image = msgs::from_cdr(&m.data)?;
-                    stamp(&mut i.header);
-                    w.write(&m.topic, msgs::schema::image(), Time::from_seconds(t), &i)?;
-                }
+            let cdr = match m.schema.as_str() {
+                "sensor_msgs/msg/Image" => shifted::<Image>(&m.data, shift, |i| &mut i.header)?,
                 "sensor_msgs/msg/CameraInfo" => {
-                    let mut i: CameraInfo = msgs::from_cdr(&m.data)?;
-                    stamp(&mut i.header);
-                    w.write(
-                        &m.topic,
-                        msgs::schema::camera_info(),
-                        Time::from_seconds(t),
-                        &i,
-                    )?;
+                    shifted::<CameraInfo>(&m.data, shift, |i| &mut i.header)?
                 }
                 "sensor_msgs/msg/JointState" => {
-                    let mut j: JointState = msgs::from_cdr(&m.data)?;
-                    stamp(&mut j.header);
-                    w.write(
-                        &m.topic,
-                        msgs::schema::joint_state(),
-                        Time::from_seconds(t),
-                        &j,
-                    )?;
+                    shifted::<JointState>(&m.data, shift, |j| &mut j.header)?
                 }
-                "tf2_msgs/msg/TFMessage" if k == 0 => {
-                    w.write_raw(&m.topic, msgs::schema::tf_message(), t, &m.data)?;
-                }
+                "tf2_msgs/msg/TFMessage" if k == 0 => m.data.clone(),
                 _ => continue,
-            }
+            };
+            let schema = msgs::schema::of_type(&m.schema).unwrap_or_default();
+            w.write_raw(&m.topic, (schema.0, schema.1), t, &cdr)?;
             written += 1;
         }
     }
@@ -528,6 +507,18 @@ pub fn bag(seconds: f64, (width, height): (u32, u32), dir: &std::path::Path) -> 
             .map(|e| e.mean_mm)
             .fold(0.0, f32::max),
     })
+}
+
+/// A CDR message with its header's stamp moved by `shift` seconds.
+fn shifted<T: Serialize + serde::de::DeserializeOwned>(
+    cdr: &[u8],
+    shift: f64,
+    header: impl Fn(&mut T) -> &mut crate::msgs::Header,
+) -> Result<Vec<u8>> {
+    let mut msg: T = crate::msgs::from_cdr(cdr)?;
+    let h = header(&mut msg);
+    h.stamp = crate::msgs::Time::from_seconds(h.stamp.seconds() + shift);
+    crate::msgs::to_cdr(&msg)
 }
 
 /// A `/proc/self/status` memory figure in MB (NaN where there is none).

@@ -293,6 +293,14 @@ pub mod schema {
         s
     }
 
+    /// The schema of the message type `name` (e.g. `sensor_msgs/msg/Image`), among those pegs
+    /// reads and writes.
+    pub fn of_type(name: &str) -> Option<(&'static str, String)> {
+        [image(), camera_info(), joint_state(), tf_message()]
+            .into_iter()
+            .find(|s| s.0 == name)
+    }
+
     pub fn image() -> (&'static str, String) {
         let main = "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\nuint32 step\nuint8[] data\n";
         (

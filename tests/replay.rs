@@ -193,17 +193,11 @@ fn a_camera_that_stops_publishing_drops_out_and_is_reported() {
     assert!(problem.is_none());
     let cut = scn.join("cam1_stops.mcap");
     let mut w = pegs::record::RecordingWriter::create(&cut).unwrap();
-    let schemas = [
-        pegs::msgs::schema::image(),
-        pegs::msgs::schema::camera_info(),
-        pegs::msgs::schema::joint_state(),
-        pegs::msgs::schema::tf_message(),
-    ];
     for m in &messages {
         if m.topic == pegs::record::image_topic("cam1") && m.time > 0.5 {
             continue;
         }
-        let schema = schemas.iter().find(|s| s.0 == m.schema).unwrap().clone();
+        let schema = pegs::msgs::schema::of_type(&m.schema).unwrap();
         w.write_raw(&m.topic, schema, m.time, &m.data).unwrap();
     }
     w.finish().unwrap();
@@ -408,14 +402,7 @@ fn a_camera_moved_by_tf_is_posed_at_each_image_stamp() {
                 k += 1;
             }
             if m.topic != "/tf_static" {
-                let schema = [
-                    schema::image(),
-                    schema::camera_info(),
-                    schema::joint_state(),
-                ]
-                .into_iter()
-                .find(|s| s.0 == m.schema)
-                .unwrap();
+                let schema = schema::of_type(&m.schema).unwrap();
                 w.write_raw(&m.topic, schema, m.time, &m.data).unwrap();
             }
         }
@@ -486,14 +473,7 @@ fn bag_info_names_what_a_replay_would_use_and_what_is_missing() {
     let bare = scn.join("no_tf");
     let mut w = pegs::record::RecordingWriter::create(&bare).unwrap();
     for m in messages.iter().filter(|m| m.topic != "/tf_static") {
-        let schema = [
-            pegs::msgs::schema::image(),
-            pegs::msgs::schema::camera_info(),
-            pegs::msgs::schema::joint_state(),
-        ]
-        .into_iter()
-        .find(|s| s.0 == m.schema)
-        .unwrap();
+        let schema = pegs::msgs::schema::of_type(&m.schema).unwrap();
         w.write_raw(&m.topic, schema, m.time, &m.data).unwrap();
     }
     w.finish().unwrap();

@@ -197,29 +197,9 @@ fn pose_from_transform(t: &TransformStamped) -> Result<Pose, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::msgs::{Header, Quaternion, Time, Transform, Vector3};
 
     fn edge(parent: &str, child: &str, t: f64, p: Vec3, q: Quat) -> TransformStamped {
-        TransformStamped {
-            header: Header {
-                stamp: Time::from_seconds(t),
-                frame_id: parent.into(),
-            },
-            child_frame_id: child.into(),
-            transform: Transform {
-                translation: Vector3 {
-                    x: p.x as f64,
-                    y: p.y as f64,
-                    z: p.z as f64,
-                },
-                rotation: Quaternion {
-                    x: q.x as f64,
-                    y: q.y as f64,
-                    z: q.z as f64,
-                    w: q.w as f64,
-                },
-            },
-        }
+        crate::record::transform(parent, child, t, Pose::new(p, q))
     }
 
     /// A point expressed in the optical frame lands where composing the chain by hand puts it,

@@ -5,6 +5,7 @@
 //! use. Never reads.
 
 use super::metadata;
+use crate::math::Pose;
 use crate::msgs::{
     self, CameraInfo, Header, Image, Quaternion, TfMessage, Time, Transform, TransformStamped,
     Vector3,
@@ -109,30 +110,35 @@ pub fn mono8(width: u32, height: u32, data: Vec<u8>, t: f64, frame: &str) -> Ima
     }
 }
 
+/// A transform from `parent` to `child` stamped `t` carrying `parent_from_child`.
+pub fn transform(parent: &str, child: &str, t: f64, parent_from_child: Pose) -> TransformStamped {
+    let (p, q) = (parent_from_child.translation, parent_from_child.rotation);
+    TransformStamped {
+        header: header(t, parent),
+        child_frame_id: child.to_string(),
+        transform: Transform {
+            translation: Vector3 {
+                x: p.x as f64,
+                y: p.y as f64,
+                z: p.z as f64,
+            },
+            rotation: Quaternion {
+                x: q.x as f64,
+                y: q.y as f64,
+                z: q.z as f64,
+                w: q.w as f64,
+            },
+        },
+    }
+}
+
 /// `/tf_static` content: every named camera's optical frame in the world frame.
 pub fn optical_frames_tf(cameras: &[(String, Camera)]) -> TfMessage {
     let transforms = cameras
         .iter()
         .map(|(name, c)| {
-            let cam_to_world = c.world_to_camera.inverse();
-            let (t, q) = (cam_to_world.translation, cam_to_world.rotation);
-            TransformStamped {
-                header: header(0.0, WORLD_FRAME),
-                child_frame_id: optical_frame(name),
-                transform: Transform {
-                    translation: Vector3 {
-                        x: t.x as f64,
-                        y: t.y as f64,
-                        z: t.z as f64,
-                    },
-                    rotation: Quaternion {
-                        x: q.x as f64,
-                        y: q.y as f64,
-                        z: q.z as f64,
-                        w: q.w as f64,
-                    },
-                },
-            }
+            let world_from_optical = c.world_to_camera.inverse();
+            transform(WORLD_FRAME, &optical_frame(name), 0.0, world_from_optical)
         })
         .collect();
     TfMessage { transforms }
