@@ -54,6 +54,23 @@ impl Config {
         Ok(self)
     }
 
+    /// Every file the configuration names exists (the URDF, object files): checked before a
+    /// replay or the node starts, so a typo is an error at once and not after the cameras come.
+    pub fn check_files(&self) -> Result<()> {
+        let named = self.robot.urdf.iter().map(|p| ("robot.urdf", p)).chain(
+            self.scene
+                .objects
+                .iter()
+                .map(|o| ("scene.objects[].embodied_gaussians", &o.embodied_gaussians)),
+        );
+        for (setting, path) in named {
+            if !path.is_file() {
+                anyhow::bail!("{setting}: {} does not exist", path.display());
+            }
+        }
+        Ok(())
+    }
+
     /// What initialisation reads: the scene section, the robot, the ground and the renderer.
     pub fn init(&self) -> crate::init::Settings<'_> {
         crate::init::Settings {
@@ -73,10 +90,17 @@ impl Config {
         Ok(serde_yaml_ng::to_string(&root)?)
     }
 
+    /// Load a configuration file; relative paths in it (URDF, package paths, object files) are
+    /// relative to the file's folder, wherever pegs is started from.
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read configuration {}", path.display()))?;
-        Self::from_yaml(&text).with_context(|| format!("in configuration {}", path.display()))
+        let mut config = Self::from_yaml(&text)
+            .with_context(|| format!("in configuration {}", path.display()))?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        config.robot.resolve_paths(dir);
+        config.scene.resolve_paths(dir);
+        Ok(config)
     }
 }
 
@@ -107,7 +131,14 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/franka_3xd455.yaml");
         let c = Config::load(&path).expect("config/franka_3xd455.yaml must load");
         assert_eq!(c.node.cameras.len(), 3);
-        assert!(c.robot.urdf.is_some());
+        c.scene.check_tracks_something().unwrap();
+        // Relative paths are relative to the file, not to where pegs runs.
+        let urdf = c.robot.urdf.expect("a robot");
+        assert!(urdf.is_file(), "{} resolves to a file", urdf.display());
+        let mut empty = c.scene.clone();
+        empty.rgbd_objects.clear();
+        let e = format!("{:#}", empty.check_tracks_something().unwrap_err());
+        assert!(e.contains("scene.rgbd_objects"), "{e}");
     }
 
     #[test]

@@ -21,8 +21,8 @@ pub struct SceneConfig {
     pub offset_yaw: f32,
     /// Objects loaded from files.
     pub objects: Vec<ObjectConfig>,
-    /// Objects built from the first frames' depth and instance masks (`/<camera>/depth/image_raw`,
-    /// `/<camera>/mask/image_raw`).
+    /// Objects built from the first frames' depth and instance masks (`node.depth_topic`,
+    /// `node.mask_topic`; without masks, clusters of depth points, largest first).
     pub rgbd_objects: Vec<RgbdObjectConfig>,
     /// Fit the ground plane to the first depth frames (RANSAC) instead of `physics.ground`.
     pub ground_from_depth: bool,
@@ -134,6 +134,26 @@ impl Default for TableConfig {
 }
 
 impl SceneConfig {
+    /// Refused when nothing would be tracked: no scenario, no object files, no RGB-D objects.
+    pub fn check_tracks_something(&self) -> Result<()> {
+        if self.scenario.is_none() && self.objects.is_empty() && self.rgbd_objects.is_empty() {
+            bail!(
+                "the configuration names no scene.scenario, scene.objects or scene.rgbd_objects: \
+                 nothing to track (e.g. scene.rgbd_objects: [{{name: box, label: 1, mass: 0.2}}])"
+            );
+        }
+        Ok(())
+    }
+
+    /// Relative file paths (object files) made relative to `dir`, the configuration's folder.
+    pub fn resolve_paths(&mut self, dir: &std::path::Path) {
+        for o in &mut self.objects {
+            if o.embodied_gaussians.is_relative() {
+                o.embodied_gaussians = dir.join(&o.embodied_gaussians);
+            }
+        }
+    }
+
     pub fn validate(&self) -> Result<()> {
         for o in &self.objects {
             if o.name.is_empty() || !(o.mass.is_finite() && o.mass > 0.0) {

@@ -126,11 +126,7 @@ pub fn build_scene(
 ) -> Result<(Scene, InitReport)> {
     let clock = std::time::Instant::now();
     let scene = settings.scene;
-    if scene.objects.is_empty() && scene.rgbd_objects.is_empty() {
-        bail!(
-            "the configuration names no scene.scenario, scene.objects or scene.rgbd_objects: nothing to track"
-        );
-    }
+    scene.check_tracks_something()?;
     let mut report = InitReport::default();
     let mut builder = WorldBuilder::new();
     // The robot first, at its first recorded joint positions (the replay drives it from then on):
@@ -219,7 +215,8 @@ fn add_robot(
     let Some(path) = &config.urdf else {
         return Ok(None);
     };
-    let packages = PackagePaths(config.package_paths.clone());
+    let ament = std::env::var("AMENT_PREFIX_PATH").ok();
+    let packages = PackagePaths::with_ament(&config.package_paths, ament.as_deref());
     let model = RobotModel::load(path, &packages, config.geometry)?;
     let mut q = vec![0.0; model.joints.len()];
     for (name, v) in initial_joints {

@@ -189,6 +189,7 @@ impl Metrics {
 /// Replay `recording` with `config` into `out` (`objects.csv`, `metrics.json`, `residuals.csv`,
 /// and with ground truth or colour masks their error tables).
 pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -> Result<Metrics> {
+    config.check_files()?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut metrics = Metrics {
         recording: recording.display().to_string(),

@@ -61,6 +61,21 @@ impl Default for RobotConfig {
 }
 
 impl RobotConfig {
+    /// Relative paths (the URDF, package directories) made relative to `dir`, the
+    /// configuration's folder.
+    pub fn resolve_paths(&mut self, dir: &std::path::Path) {
+        if let Some(urdf) = &mut self.urdf
+            && urdf.is_relative()
+        {
+            *urdf = dir.join(&*urdf);
+        }
+        for p in &mut self.package_paths {
+            if p.is_relative() {
+                *p = dir.join(&*p);
+            }
+        }
+    }
+
     pub fn base_pose(&self) -> DAffine3 {
         let [x, y, z, w] = self.base_orientation.map(|v| v as f64);
         DAffine3::from_rotation_translation(

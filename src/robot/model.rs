@@ -100,6 +100,20 @@ pub struct RobotModel {
 pub struct PackagePaths(pub Vec<PathBuf>);
 
 impl PackagePaths {
+    /// `dirs`, then the `share` directory of every install prefix in `ament_prefix_path` (the
+    /// value of `AMENT_PREFIX_PATH`, colon-separated), where colcon installs `<package>/...`.
+    pub fn with_ament(dirs: &[PathBuf], ament_prefix_path: Option<&str>) -> Self {
+        let mut all = dirs.to_vec();
+        all.extend(
+            ament_prefix_path
+                .unwrap_or_default()
+                .split(':')
+                .filter(|p| !p.is_empty())
+                .map(|p| Path::new(p).join("share")),
+        );
+        Self(all)
+    }
+
     fn resolve(&self, uri: &str, base_dir: &Path) -> Result<PathBuf> {
         if let Some(rest) = uri.strip_prefix("package://") {
             let (package, relative) = rest

@@ -135,6 +135,8 @@ fn node_options(config: &Config, live: &Arc<Mutex<Config>>) -> Result<NodeOption
 
 async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> Result<RunStats> {
     config.node.validate_live()?;
+    config.scene.check_tracks_something()?;
+    config.check_files()?;
     let context = ros_context()?;
     let live = Arc::new(Mutex::new(config.clone()));
     let node_name = launch.node_name.clone().unwrap_or_else(|| "pegs".into());
@@ -165,13 +167,20 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
             .name("pegs-publish".into())
             .spawn(move || publish_loop(rx, publishers, render, &optical_frame, latencies))?
     };
+    // The tick thread says when it ends, so an error in it (initialisation included) stops the
+    // node at once, exiting non-zero with the reason, instead of waiting for a signal.
+    let (ended_tx, ended) = tokio::sync::oneshot::channel::<()>();
     let tick_thread = {
         let (shared, stop, live) = (shared.clone(), stop.clone(), live.clone());
         std::thread::Builder::new()
             .name("pegs-tick".into())
-            .spawn(move || tick_loop(config, shared, live, tx, stop))?
+            .spawn(move || {
+                let result = tick_loop(config, shared, live, tx, stop);
+                let _ = ended_tx.send(());
+                result
+            })?
     };
-    wait_for_stop(options.duration).await?;
+    wait_for_stop(options.duration, ended).await?;
     stop.store(true, Ordering::SeqCst);
     let mut stats = tick_thread
         .join()
@@ -195,13 +204,17 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
     Ok(stats)
 }
 
-/// Until SIGINT, SIGTERM or `duration` seconds.
-async fn wait_for_stop(duration: Option<f64>) -> Result<()> {
+/// Until SIGINT, SIGTERM, `duration` seconds or the tick thread's end.
+async fn wait_for_stop(
+    duration: Option<f64>,
+    tick_ended: tokio::sync::oneshot::Receiver<()>,
+) -> Result<()> {
     let deadline = duration.map(|d| tokio::time::Instant::now() + Duration::from_secs_f64(d));
     let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     tokio::select! {
         _ = tokio::signal::ctrl_c() => log("SIGINT: stopping"),
         _ = terminate.recv() => log("SIGTERM: stopping"),
+        _ = tick_ended => log("the tick thread ended: stopping"),
         _ = async { match deadline { Some(d) => tokio::time::sleep_until(d).await, None => std::future::pending().await } } => log("duration reached: stopping"),
     }
     Ok(())

@@ -442,3 +442,68 @@ def test_large_images_are_not_hoarded_by_the_receive_cache(recording, ros):
     stop_node(proc, stats_path)
     node.destroy_node()
     assert grown < 20, f"the node kept {grown:.0f} MB of 60 depth images"
+
+
+def run_to_exit(config: Path, log: Path, timeout: float):
+    """Run the node with `config` until it exits by itself; (return code, seconds, output)."""
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    start = time.time()
+    with open(log, "w") as out:
+        proc = subprocess.Popen([PEGS, "node", "--config", str(config)], env=env, stdout=out, stderr=subprocess.STDOUT)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            raise AssertionError(f"the node still ran after {timeout} s: {log.read_text()}")
+    return proc.returncode, time.time() - start, log.read_text()
+
+
+def test_a_configuration_that_cannot_work_is_refused_at_start(recording):
+    """Nothing to track, a URDF that is not there, no cameras named: each is refused at start
+    (non-zero exit within 5 s) with the setting named, not found out in the tick thread later."""
+    cases = {
+        "nothing_to_track": ("node: {cameras: [cam0]}", "scene.rgbd_objects"),
+        "missing_urdf": ("robot: {urdf: no_such.urdf}\n    node: {cameras: [cam0]}\n    scene: {scenario: pushed_box}", "robot.urdf"),
+        "no_cameras": ("scene: {scenario: pushed_box}", "node.cameras"),
+    }
+    for name, (body, setting) in cases.items():
+        config = recording / f"{name}.yaml"
+        config.write_text(f"pegs:\n  ros__parameters:\n    {body}\n")
+        code, seconds, out = run_to_exit(config, recording / f"{name}.log", timeout=20)
+        assert code != 0 and seconds < 5, f"{name}: exit {code} after {seconds:.1f} s: {out}"
+        assert setting in out, f"{name}: '{setting}' not named in: {out}"
+
+
+def test_an_error_in_the_tick_thread_stops_the_node_at_once(recording, ros):
+    """A URDF that exists but cannot be read fails when the scene is built from the first frames,
+    in the tick thread: the node exits non-zero with the reason as soon as that happens, instead of
+    running on silently until a signal."""
+    (recording / "broken.urdf").write_text("<robot name='arm'><link name='a'>")
+    config = recording / "tick_error.yaml"
+    config.write_text(
+        "pegs:\n  ros__parameters:\n    robot: {urdf: broken.urdf}\n    node: {cameras: [cam0, cam1, cam2]}\n"
+        "    scene:\n      rgbd_objects: [{name: box, label: 1, mass: 0.2, particle_radius: 0.005}]\n")
+    node = rclpy.create_node("pegs_test_tick_error")
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    log = recording / "tick_error.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen([PEGS, "node", "--config", str(config)], env=env, stdout=out, stderr=subprocess.STDOUT)
+        player = Player(node, str(recording / "recording"))
+        end = time.time() + 20
+        while time.time() < end and any(node.count_subscribers(t) == 0 for t in player.publishers):
+            rclpy.spin_once(node, timeout_sec=0.05)
+        player.begin(time.time() + 0.2)
+        started = time.time()
+        while proc.poll() is None and time.time() - started < 15:
+            player.publish_due(time.time())
+            rclpy.spin_once(node, timeout_sec=0.003)
+        running = proc.poll() is None
+        if running:
+            proc.kill()
+        proc.wait()
+    node.destroy_node()
+    text = log.read_text()
+    assert not running, f"the node kept running after its tick thread failed: {text}"
+    assert proc.returncode != 0, text
+    assert "malformed URDF" in text and "the tick thread ended" in text, text
