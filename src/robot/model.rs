@@ -550,4 +550,30 @@ mod tests {
         ));
         assert!(e.contains("nopkg"), "{e}");
     }
+
+    /// `package://` URIs are found in the configured directories first, then under
+    /// `<prefix>/share/<package>` of every AMENT_PREFIX_PATH entry, as colcon installs them.
+    #[test]
+    fn package_uris_resolve_through_ament_install_prefixes() {
+        let root = std::env::temp_dir().join(format!("pegs-ament-{}", std::process::id()));
+        let mesh = root.join("install/franka_description/share/franka_description/meshes/l0.stl");
+        std::fs::create_dir_all(mesh.parent().unwrap()).unwrap();
+        std::fs::write(&mesh, b"solid x\nendsolid x\n").unwrap();
+        let uri = "package://franka_description/meshes/l0.stl";
+        let prefixes = format!(
+            "/nonexistent:{}",
+            root.join("install/franka_description").display()
+        );
+        let found = PackagePaths::with_ament(&[], Some(&prefixes))
+            .resolve(uri, Path::new("."))
+            .unwrap();
+        assert_eq!(found, mesh);
+        let e = PackagePaths::with_ament(&[], None)
+            .resolve(uri, Path::new("."))
+            .unwrap_err();
+        assert!(
+            format!("{e:#}").contains("package 'franka_description'"),
+            "{e:#}"
+        );
+    }
 }
