@@ -288,6 +288,22 @@ impl Inputs {
         }
     }
 
+    /// A camera that became ready after the others (its index), fed from its next image on.
+    pub fn add_camera(&mut self, name: String, camera: Camera) -> usize {
+        if let Some(k) = self.camera_index(&name) {
+            return k;
+        }
+        self.cameras.push(CameraFeed {
+            name,
+            camera,
+            latest: None,
+            order: StampOrder::default(),
+            accepted: 0,
+            rejected: 0,
+        });
+        self.cameras.len() - 1
+    }
+
     pub fn camera_index(&self, name: &str) -> Option<usize> {
         self.cameras.iter().position(|c| c.name == name)
     }

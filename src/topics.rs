@@ -27,6 +27,9 @@ pub struct NodeConfig {
     pub optical_frame: String,
     pub joint_states_topic: String,
     pub world_frame: String,
+    /// Seconds the node waits for every camera's CameraInfo and pose before it starts with those
+    /// it has; a camera ready later joins at the next tick.
+    pub camera_wait: f32,
     /// Prefix of every output topic: `{prefix}/objects`, `{prefix}/poses`, `{prefix}/particles`,
     /// `{prefix}/debug/{camera}/image` (and `/compressed`).
     pub output_prefix: String,
@@ -48,6 +51,7 @@ impl Default for NodeConfig {
             optical_frame: String::new(),
             joint_states_topic: "/joint_states".into(),
             world_frame: "world".into(),
+            camera_wait: 5.0,
             output_prefix: "/pegs".into(),
             debug_images_every: 10,
             diagnostics_period: 1.0,
@@ -76,6 +80,9 @@ impl NodeConfig {
         }
         if !(self.depth_unit.is_finite() && self.depth_unit > 0.0) {
             bail!("node.depth_unit must be > 0 m, got {}", self.depth_unit);
+        }
+        if !(self.camera_wait.is_finite() && self.camera_wait >= 0.0) {
+            bail!("node.camera_wait must be >= 0 s, got {}", self.camera_wait);
         }
         if !(self.diagnostics_period.is_finite() && self.diagnostics_period > 0.0) {
             bail!(

@@ -25,10 +25,6 @@ use std::sync::mpsc::{SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-/// How long the node waits for every camera's CameraInfo and /tf_static transform before it
-/// starts with the cameras it has.
-const CAMERA_WAIT_S: f64 = 5.0;
-
 /// Start the tracker, then tick until `stop`.
 pub fn tick_loop(
     config: Config,
@@ -73,6 +69,7 @@ pub fn tick_loop(
             tracker.set_correct(applied.correct.clone());
             outputs.debug_every = applied.node.debug_images_every as usize;
         }
+        join_late_cameras(&shared, &applied.node, next)?;
         let inputs = take_inputs(&shared, next, applied.correct.max_image_age as f64)?;
         let report = tracker.tick(&inputs)?;
         index += 1;
@@ -140,7 +137,7 @@ fn start_tracker(
         };
         let waited = now() - started;
         let all = cameras.len() == nc.cameras.len();
-        if !cameras.is_empty() && !needs_images && (all || waited > CAMERA_WAIT_S) {
+        if !cameras.is_empty() && !needs_images && (all || waited > nc.camera_wait as f64) {
             let mut s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
             report_unused_cameras(&mut s, nc, &cameras, waited);
             return start(config, cameras, &mut s).map(Some);
@@ -154,6 +151,27 @@ fn start_tracker(
         }
         std::thread::sleep(Duration::from_millis(50));
     }
+}
+
+/// Cameras left out at start that are ready now (CameraInfo and pose) join the tracking from
+/// their next image; said in the log, and their diagnostics clear.
+fn join_late_cameras(shared: &Mutex<Shared>, nc: &NodeConfig, t: f64) -> Result<()> {
+    let mut s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
+    if s.unused_cameras.is_empty() {
+        return Ok(());
+    }
+    for (name, camera) in ready_cameras(&s, nc) {
+        if s.unused_cameras.remove(&name).is_none() {
+            continue;
+        }
+        if let Some(inputs) = s.inputs.as_mut() {
+            inputs.add_camera(name.clone(), camera);
+        }
+        log(&format!(
+            "camera {name}: ready at {t:.3} s; joins the tracking"
+        ));
+    }
+    Ok(())
 }
 
 /// Log and remember the configured cameras that are not ready.

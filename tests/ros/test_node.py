@@ -507,3 +507,33 @@ def test_an_error_in_the_tick_thread_stops_the_node_at_once(recording, ros):
     assert not running, f"the node kept running after its tick thread failed: {text}"
     assert proc.returncode != 0, text
     assert "malformed URDF" in text and "the tick thread ended" in text, text
+
+
+def test_a_camera_that_starts_late_joins_the_tracking(recording, ros):
+    """cam2 (CameraInfo and images) starts 7 s after the others: the node starts with cam0 and
+    cam1 after its wait (node.camera_wait, 5 s), then cam2 joins at the next tick once its
+    CameraInfo arrives, its images are used and its diagnostics clear."""
+    node = rclpy.create_node("pegs_test_late_camera")
+    recorder = Recorder(node)
+    proc, stats_path = start_node(recording, "late_camera")
+    player = Player(node, str(recording / "recording"))
+    wait_for_discovery(node, player)
+    player.paused_topics.add("/camera/cam2/")
+    started = time.time()
+    for _ in range(3):
+        player.cursor = 0
+        player.begin(time.time() + 0.2)
+
+        def unpause(now):
+            if now - started > 7.0:
+                player.paused_topics.discard("/camera/cam2/")
+
+        spin_for(node, RUN_SECONDS + 0.5, player, each=unpause)
+    stats = stop_node(proc, stats_path)
+    node.destroy_node()
+    log = (recording / "late_camera.log").read_text()
+    assert "camera cam2: no CameraInfo" in log, log
+    assert "camera cam2: ready at" in log and "joins the tracking" in log, log
+    assert stats["images_accepted"].get("cam2", 0) > 10, stats["images_accepted"]
+    status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
+    assert level(status["pegs: camera cam2"]) == 0, status["pegs: camera cam2"].message
