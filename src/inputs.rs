@@ -248,6 +248,10 @@ struct Joints {
 pub struct Inputs {
     pub cameras: Vec<CameraFeed>,
     joints: Option<Joints>,
+    /// Joint-name prefix as received and as the URDF has it (`rename_joints`).
+    joint_prefix: Option<(String, String)>,
+    /// Whether any joint state has named a joint of the robot.
+    pub joints_matched: bool,
     pub log: InputLog,
     /// Rejections so far, by kind (for diagnostics).
     pub rejections: std::collections::BTreeMap<&'static str, usize>,
@@ -283,9 +287,23 @@ impl Inputs {
         Self {
             cameras,
             joints,
+            joint_prefix: None,
+            joints_matched: false,
             log: InputLog::default(),
             rejections: Default::default(),
         }
+    }
+
+    /// Whether the scene has a robot whose joints the joint states drive.
+    pub fn has_robot(&self) -> bool {
+        self.joints.is_some()
+    }
+
+    /// Joint names that start with `received` are renamed to start with `urdf` instead (a
+    /// driver's naming against the URDF's: `fr3_` against `panda_`). Empty `received`: no change.
+    pub fn rename_joints(&mut self, received: &str, urdf: &str) {
+        self.joint_prefix =
+            (!received.is_empty()).then(|| (received.to_string(), urdf.to_string()));
     }
 
     /// A camera that became ready after the others (its index), fed from its next image on.
@@ -347,6 +365,20 @@ impl Inputs {
     /// Offer a joint state received when the clock read `now`. Finite values of known joints are
     /// used; unknown joint names are reported once and skipped.
     pub fn offer_joint_state(&mut self, js: &JointState, now: f64) -> Result<(), Rejection> {
+        let renamed;
+        let js = match &self.joint_prefix {
+            Some((received, urdf)) => {
+                let mut copy = js.clone();
+                for name in &mut copy.name {
+                    if let Some(rest) = name.strip_prefix(received.as_str()) {
+                        *name = format!("{urdf}{rest}");
+                    }
+                }
+                renamed = copy;
+                &renamed
+            }
+            None => js,
+        };
         let stamp = js.header.stamp.seconds();
         let Some(joints) = &mut self.joints else {
             return Ok(());
@@ -377,6 +409,7 @@ impl Inputs {
             .filter(|(n, v)| !v.is_finite() && joints.tracker.knows(n))
             .map(|(n, _)| n.clone())
             .collect();
+        self.joints_matched |= known_finite > 0;
         if known_finite == 0 && !non_finite.is_empty() {
             self.log.joint_states_rejected += 1;
             return Err(self.refuse(what, Rejection::NonFinite(non_finite)));
@@ -922,5 +955,40 @@ mod tests {
         let other = decompress(&msg("theora", vec![1, 2])).unwrap_err();
         assert!(other.contains("'theora'"), "{other}");
         assert!(decompress(&msg("jpeg", vec![1, 2, 3])).is_err());
+    }
+
+    /// A driver that prefixes its joints differently from the URDF (`fr3_` for `panda_`): without
+    /// the mapping no joint matches and every name is unknown; with it the robot is driven.
+    #[test]
+    fn a_joint_prefix_mapping_lets_a_drivers_names_drive_the_urdf() {
+        let model = crate::robot::RobotModel::parse(
+            r#"<robot name="r"><link name="a"/><link name="b"/>
+            <joint name="panda_joint1" type="revolute"><parent link="a"/><child link="b"/>
+            <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint></robot>"#,
+            std::path::Path::new("."),
+            &PackagePaths::default(),
+            GeometrySource::Collision,
+        )
+        .unwrap();
+        let js = |t: f64| JointState {
+            header: Header {
+                stamp: Time::from_seconds(t),
+                frame_id: String::new(),
+            },
+            name: vec!["fr3_joint1".into()],
+            position: vec![0.5],
+            ..Default::default()
+        };
+        let mut plain = Inputs::new(vec![], Some((&model, &[0.0])));
+        plain.offer_joint_state(&js(0.1), 0.1).unwrap();
+        assert!(!plain.joints_matched);
+        assert!(plain.log.unknown_joints.contains("fr3_joint1"));
+        let mut mapped = Inputs::new(vec![], Some((&model, &[0.0])));
+        mapped.rename_joints("fr3_", "panda_");
+        mapped.offer_joint_state(&js(0.1), 0.1).unwrap();
+        assert!(mapped.joints_matched && mapped.log.unknown_joints.is_empty());
+        let tick = mapped.tick_inputs(0.1, 1.0);
+        let q = tick.trajectory.expect("a trajectory").at(0.1).unwrap();
+        assert!((q[0] - 0.5).abs() < 1e-9, "{q:?}");
     }
 }

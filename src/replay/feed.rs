@@ -36,16 +36,19 @@ pub struct Feed<'a> {
 
 impl<'a> Feed<'a> {
     /// A feed for `tracker`, whose robot (if any) starts at its trajectory's first positions.
-    pub fn new(streams: &'a Streams, tracker: &Tracker) -> Result<Self> {
+    pub fn new(streams: &'a Streams, tracker: &Tracker, config: &Config) -> Result<Self> {
         let cameras = streams
             .cameras
             .iter()
             .map(|c| (c.name.clone(), c.camera))
             .collect();
+        let mut inputs = tracker.inputs(cameras);
+        let robot = &config.robot;
+        inputs.rename_joints(&robot.joint_prefix_received, &robot.joint_prefix_urdf);
         Ok(Self {
             streams,
             reader: BagReader::open(&streams.path)?.peekable(),
-            inputs: tracker.inputs(cameras),
+            inputs,
             pending: streams.cameras.iter().map(|_| VecDeque::new()).collect(),
             joint_cursor: 0,
             tf: streams.tf.clone(),

@@ -45,15 +45,27 @@ pub fn info(bag: &Path, config: &Config) -> Result<BagInfo> {
             .collect(),
         None => Vec::new(),
     };
-    let (matched, missing) = movable
+    // The names as the replay will see them, after robot.joint_prefix_* (fr3_ -> panda_).
+    let robot = &config.robot;
+    let renamed: Vec<String> = survey
+        .joint_names
         .iter()
-        .cloned()
-        .partition(|j| survey.joint_names.contains(j));
+        .map(
+            |j| match j.strip_prefix(robot.joint_prefix_received.as_str()) {
+                Some(rest) if !robot.joint_prefix_received.is_empty() => {
+                    format!("{}{rest}", robot.joint_prefix_urdf)
+                }
+                _ => j.clone(),
+            },
+        )
+        .collect();
+    let (matched, missing) = movable.iter().cloned().partition(|j| renamed.contains(j));
     let unknown_joints = survey
         .joint_names
         .iter()
-        .filter(|j| config.robot.urdf.is_some() && !movable.contains(j))
-        .cloned()
+        .zip(&renamed)
+        .filter(|(_, r)| config.robot.urdf.is_some() && !movable.contains(r))
+        .map(|(j, _)| j.clone())
         .collect();
     Ok(BagInfo {
         survey,

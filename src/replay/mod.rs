@@ -221,7 +221,7 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     let mut tracker = Tracker::new(scene, &config, opts.visual_forces)?;
     let mut observers = Observers::new(recording, out, &config, &tracker, &metrics, ticks, opts)?;
     observers.start(&tracker)?;
-    let mut feed = Feed::new(&streams, &tracker)?;
+    let mut feed = Feed::new(&streams, &tracker, &config)?;
     let progress = if opts.progress {
         let style = indicatif::ProgressStyle::with_template(
             "{wide_bar} {pos}/{len} ticks ({per_sec}), {elapsed} elapsed, {eta} left",

@@ -41,6 +41,11 @@ pub struct RobotConfig {
     pub colour: Option<Vec3>,
     /// Colour of links without a URDF material.
     pub default_colour: Vec3,
+    /// Joint names as the driver publishes them start with `joint_prefix_received` (e.g. `fr3_`
+    /// from franka_ros2 on Jazzy), which is replaced by `joint_prefix_urdf` (e.g. `panda_`) to
+    /// match the URDF. Both empty: names are used as they come.
+    pub joint_prefix_received: String,
+    pub joint_prefix_urdf: String,
 }
 
 impl Default for RobotConfig {
@@ -56,6 +61,8 @@ impl Default for RobotConfig {
             spacing_per_radius: 2.0,
             colour: None,
             default_colour: Vec3::splat(0.9),
+            joint_prefix_received: String::new(),
+            joint_prefix_urdf: String::new(),
         }
     }
 }

@@ -56,6 +56,7 @@ pub fn diagnostics(
     let mut all = vec![tick_status(window, stats, dt)];
     all.extend(camera_statuses(s, tick));
     all.push(inputs_status(s));
+    all.extend(robot_status(s, stats.ticks as f64 * dt));
     all.push(tracking_status(tick, window));
     Some(DiagnosticArray {
         header: header.clone(),
@@ -179,6 +180,47 @@ fn inputs_status(s: &Shared) -> DiagnosticStatus {
         n => format!("{n} message(s) rejected so far"),
     };
     status(level, "pegs: inputs".into(), message, "pegs", values)
+}
+
+/// Seconds of tracking after which a robot none of whose joints was named is an ERROR.
+pub const JOINTS_DEADLINE_S: f64 = 2.0;
+
+/// The robot's joint states: matched, or an ERROR once `JOINTS_DEADLINE_S` of tracking passed
+/// without a single joint of the URDF named (the arm would stay where it started, colliding).
+fn robot_status(s: &Shared, tracked_s: f64) -> Option<DiagnosticStatus> {
+    let inputs = s.inputs.as_ref()?;
+    if !inputs.has_robot() {
+        return None;
+    }
+    let unknown: Vec<&str> = inputs
+        .log
+        .unknown_joints
+        .iter()
+        .map(String::as_str)
+        .collect();
+    let (level, message) = if inputs.joints_matched {
+        (
+            DiagnosticStatus::OK,
+            "joint states drive the robot".to_string(),
+        )
+    } else if tracked_s > JOINTS_DEADLINE_S {
+        let seen = if unknown.is_empty() {
+            "no joint states received".to_string()
+        } else {
+            format!("received only {}", unknown.join(", "))
+        };
+        (
+            DiagnosticStatus::ERROR,
+            format!(
+                "no joint of the URDF named after {tracked_s:.0} s ({seen}); the arm stays where it \
+                 started. Set robot.joint_prefix_received and robot.joint_prefix_urdf (e.g. fr3_ \
+                 and panda_) or node.joint_states_topic"
+            ),
+        )
+    } else {
+        (DiagnosticStatus::OK, "waiting for joint states".to_string())
+    };
+    Some(status(level, "pegs: robot".into(), message, "pegs", vec![]))
 }
 
 fn tracking_status(tick: &TickInputs, window: &Window) -> DiagnosticStatus {

@@ -203,6 +203,8 @@ fn start(config: &Config, cameras: Vec<(String, Camera)>, s: &mut Shared) -> Res
     scene.world.time = t;
     let tracker = Tracker::new(scene, config, true)?;
     let mut inputs = tracker.inputs(cameras);
+    let robot = &config.robot;
+    inputs.rename_joints(&robot.joint_prefix_received, &robot.joint_prefix_urdf);
     if let Some(js) = s.last_joint_state.take() {
         let _ = inputs.offer_joint_state(&js, t);
     }

@@ -537,3 +537,35 @@ def test_a_camera_that_starts_late_joins_the_tracking(recording, ros):
     assert stats["images_accepted"].get("cam2", 0) > 10, stats["images_accepted"]
     status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
     assert level(status["pegs: camera cam2"]) == 0, status["pegs: camera cam2"].message
+
+
+def test_fr3_joint_names_drive_the_panda_urdf_with_a_prefix_parameter(recording, ros):
+    """franka_ros2 on Jazzy publishes fr3_joint*, the URDF names panda_joint*. Without a mapping no
+    joint matches and after 2 s of tracking /diagnostics says so as an ERROR naming the setting;
+    with robot.joint_prefix_received:=fr3_ and robot.joint_prefix_urdf:=panda_ the joints drive the
+    robot and nothing is unknown."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    mapping = ("-p", "robot.joint_prefix_received:=fr3_", "-p", "robot.joint_prefix_urdf:=panda_")
+    for name, extra, expected in [("fr3_unmapped", (), 2), ("fr3_mapped", mapping, 0)]:
+        node = rclpy.create_node(f"pegs_test_{name}")
+        recorder = Recorder(node)
+        proc, stats_path = start_node(recording, name, extra)
+        player = Player(node, str(recording / "recording"))
+        for k, (t, topic, type_name, cdr) in enumerate(player.messages):
+            if topic == "/joint_states":
+                js = deserialize_message(cdr, JointState)
+                js.name = [n.replace("panda_", "fr3_", 1) for n in js.name]
+                player.messages[k] = (t, topic, type_name, serialize_message(js))
+        wait_for_discovery(node, player)
+        player.begin(time.time() + 0.2)
+        spin_for(node, RUN_SECONDS + 0.5, player)
+        stop_node(proc, stats_path)
+        node.destroy_node()
+        status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
+        robot = status["pegs: robot"]
+        assert level(robot) == expected, f"{name}: {robot.message}"
+        inputs = {v.key: v.value for v in status["pegs: inputs"].values}
+        if expected:
+            assert "robot.joint_prefix_received" in robot.message and "fr3_joint1" in robot.message, robot.message
+        else:
+            assert inputs["unknown_joints"] == "", inputs
