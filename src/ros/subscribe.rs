@@ -203,9 +203,22 @@ impl Subscriber<'_> {
     fn subscribe<T: 'static + serde::de::DeserializeOwned + Send + Sync>(
         &mut self,
         name: &str,
+        package_ty: (&str, &str),
+        qos: QosProfile,
+        handle: impl Fn(&mut Shared, T) + Send + 'static,
+    ) -> Result<()> {
+        self.subscribe_until(name, package_ty, qos, handle, |_| false)
+    }
+
+    /// As `subscribe`, but the subscription is dropped (its DDS reader deleted, so nothing more
+    /// is received or deserialised) once `done` holds on the shared state, checked every 0.5 s.
+    fn subscribe_until<T: 'static + serde::de::DeserializeOwned + Send + Sync>(
+        &mut self,
+        name: &str,
         (package, ty): (&str, &str),
         qos: QosProfile,
         handle: impl Fn(&mut Shared, T) + Send + 'static,
+        done: fn(&Shared) -> bool,
     ) -> Result<()> {
         let topic = self.create_topic(name, MessageTypeName::new(package, ty), &qos)?;
         let subscription = self
@@ -216,7 +229,19 @@ impl Subscriber<'_> {
         tokio::spawn(async move {
             let stream = subscription.async_stream();
             tokio::pin!(stream);
-            while let Some(item) = stream.next().await {
+            let mut check = tokio::time::interval(Duration::from_millis(500));
+            loop {
+                let item = tokio::select! {
+                    item = stream.next() => item,
+                    _ = check.tick() => {
+                        if shared.lock().is_ok_and(|s| done(&s)) {
+                            log(&format!("{name}: no longer needed; unsubscribed"));
+                            break;
+                        }
+                        continue;
+                    }
+                };
+                let Some(item) = item else { break };
                 let Ok(mut s) = shared.lock() else { return };
                 match item {
                     Ok((msg, _info)) => handle(&mut s, msg),
@@ -272,10 +297,10 @@ pub fn subscribe(
                 s.resolve_camera_poses(&frames);
             },
         )?;
-        // Depth and masks: only the first frames, for initialisation.
+        // Depth and masks: only the first frames, for initialisation; dropped once tracking runs.
         for (template, depth) in [(&nc.depth_topic, true), (&nc.mask_topic, false)] {
             let c = cam.clone();
-            s.subscribe(
+            s.subscribe_until(
                 &topic(template),
                 IMAGE,
                 sensor_qos(),
@@ -289,6 +314,7 @@ pub fn subscribe(
                         first.insert(c.clone(), img);
                     }
                 },
+                |s| s.inputs.is_some(),
             )?;
         }
     }

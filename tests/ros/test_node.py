@@ -26,7 +26,7 @@ from pegs.msg import TrackedObjectArray
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import CompressedImage, Image, JointState, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState, PointCloud2
 from tf2_msgs.msg import TFMessage
 
 ROOT = Path(os.environ.get("PEGS_ROOT", Path(__file__).resolve().parents[2]))
@@ -569,3 +569,33 @@ def test_fr3_joint_names_drive_the_panda_urdf_with_a_prefix_parameter(recording,
             assert "robot.joint_prefix_received" in robot.message and "fr3_joint1" in robot.message, robot.message
         else:
             assert inputs["unknown_joints"] == "", inputs
+
+
+def test_depth_and_mask_subscriptions_end_once_tracking_runs(recording, ros):
+    """Depth and masks are read once, to initialise: once tracking runs their subscriptions are
+    dropped, so the node no longer receives or deserialises them. Garbage sent on a depth topic
+    afterwards is never seen, while the same garbage on CameraInfo (still subscribed) is counted
+    as malformed."""
+    node = rclpy.create_node("pegs_test_unsubscribe")
+    recorder = Recorder(node)
+    proc, stats_path = start_node(recording, "unsubscribe")
+    player = Player(node, str(recording / "recording"))
+    depth = "/camera/cam0/aligned_depth_to_color/image_raw"
+    info = "/camera/cam1/color/camera_info"
+    wait_for_discovery(node, player)
+    player.begin(time.time() + 0.2)
+    spin_for(node, 3.0, player)
+    garbage_depth = node.create_publisher(Image, depth, SENSOR)
+    spin_for(node, 1.0, player)
+    for _ in range(10):
+        garbage_depth.publish(b"\x00\x01\x00\x00\x07")
+        player.publishers[info].publish(b"\x00\x01\x00\x00\x07")
+        spin_for(node, 0.05, player)
+    spin_for(node, 1.0, player)
+    stop_node(proc, stats_path)
+    node.destroy_node()
+    log = (recording / "unsubscribe.log").read_text()
+    assert recorder.count("objects") > 5, "tracking ran"
+    assert f"{depth}: no longer needed; unsubscribed" in log, log
+    assert f"{info}: malformed message" in log, "garbage reaches a subscribed topic"
+    assert f"{depth}: malformed message" not in log, "the depth subscription still receives"
