@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Play a pegs recording (MCAP) into a running-for-real `pegs node` over DDS, restamped to the wall
-# clock, and print the node's statistics at the end. Needs the ROS venv of the tests
-# (tests/ros/setup_venv.sh). Usage: replay_into_node.sh RECORDING.mcap CONFIG.yaml [VENV]
+# Play a pegs recording (a rosbag2 directory with MCAP storage, or an .mcap file) into a
+# running-for-real `pegs node` over DDS, restamped to the wall clock, and print the node's
+# statistics at the end. Needs the ROS venv of the tests (tests/ros/setup_venv.sh).
+# Usage: replay_into_node.sh RECORDING CONFIG.yaml [VENV]
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 REC=$(realpath "$1"); CONFIG=$(realpath "$2")

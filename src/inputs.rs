@@ -142,6 +142,19 @@ pub struct CameraFeed {
     pub rejected: usize,
 }
 
+impl CameraFeed {
+    fn new(name: String, camera: Camera) -> Self {
+        Self {
+            name,
+            camera,
+            latest: None,
+            order: StampOrder::default(),
+            accepted: 0,
+            rejected: 0,
+        }
+    }
+}
+
 /// Counts of everything refused, by source and kind, plus lines worth logging once.
 #[derive(Clone, Debug, Default)]
 pub struct InputLog {
@@ -263,14 +276,7 @@ impl Inputs {
     pub fn new(cameras: Vec<(String, Camera)>, robot: Option<(&RobotModel, &[f64])>) -> Self {
         let cameras = cameras
             .into_iter()
-            .map(|(name, camera)| CameraFeed {
-                name,
-                camera,
-                latest: None,
-                order: StampOrder::default(),
-                accepted: 0,
-                rejected: 0,
-            })
+            .map(|(name, camera)| CameraFeed::new(name, camera))
             .collect();
         let joints = robot.map(|(model, q)| {
             let mut tracker = JointStateTracker::new(model);
@@ -311,14 +317,7 @@ impl Inputs {
         if let Some(k) = self.camera_index(&name) {
             return k;
         }
-        self.cameras.push(CameraFeed {
-            name,
-            camera,
-            latest: None,
-            order: StampOrder::default(),
-            accepted: 0,
-            rejected: 0,
-        });
+        self.cameras.push(CameraFeed::new(name, camera));
         self.cameras.len() - 1
     }
 
