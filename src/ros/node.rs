@@ -162,10 +162,10 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
     let latencies = Arc::new(Mutex::new(Vec::<f64>::new()));
     let publisher_thread = {
         let latencies = latencies.clone();
-        let (render, optical_frame) = (config.render.clone(), nc.optical_frame.clone());
+        let render = config.render.clone();
         std::thread::Builder::new()
             .name("pegs-publish".into())
-            .spawn(move || publish_loop(rx, publishers, render, &optical_frame, latencies))?
+            .spawn(move || publish_loop(rx, publishers, render, latencies))?
     };
     // The tick thread says when it ends, so an error in it (initialisation included) stops the
     // node at once, exiting non-zero with the reason, instead of waiting for a signal.

@@ -23,9 +23,13 @@ pub struct TickOutput {
     pub cloud: PointCloud2,
     /// Newest image stamp used (for the end-to-end latency).
     pub newest_image: Option<f64>,
-    pub debug: Option<(GaussianCloud, Vec<(String, Camera)>)>,
+    /// The world's Gaussians and the cameras to render them into.
+    pub debug: Option<(GaussianCloud, Vec<DebugView>)>,
     pub diagnostics: Option<DiagnosticArray>,
 }
+
+/// A camera to render a debug image for: name, model and optical frame (the image's frame_id).
+pub type DebugView = (String, Camera, String);
 
 pub struct Publishers {
     objects: Publisher<TrackedObjectArray>,
@@ -109,7 +113,6 @@ pub fn publish_loop(
     rx: std::sync::mpsc::Receiver<TickOutput>,
     publishers: Publishers,
     render: crate::render::RenderSettings,
-    optical_frame: &str,
     latencies: Arc<Mutex<Vec<f64>>>,
 ) {
     let mut renderer = crate::render::cpu::CpuRenderer::new(render);
@@ -147,7 +150,7 @@ pub fn publish_loop(
             fail("diagnostics", format!("{e:?}"));
         }
         if let Some((cloud, cameras)) = out.debug {
-            for (name, camera) in cameras {
+            for (name, camera, frame_id) in cameras {
                 let Some((raw_pub, compressed_pub)) = publishers.debug.get(&name) else {
                     continue;
                 };
@@ -163,7 +166,7 @@ pub fn publish_loop(
                         camera.width,
                         camera.height,
                         &Header {
-                            frame_id: NodeConfig::for_camera(optical_frame, &name),
+                            frame_id,
                             ..out.header.clone()
                         },
                     )

@@ -292,6 +292,7 @@ fn usable<T>(camera: &str, what: &str, decoded: Result<T, String>) -> Option<T> 
 struct Outputs {
     shared: Arc<Mutex<Shared>>,
     tx: SyncSender<TickOutput>,
+    node: NodeConfig,
     world_frame: String,
     dt: f64,
     diagnostics_period: f64,
@@ -311,6 +312,7 @@ impl Outputs {
         Self {
             shared,
             tx,
+            node: config.node.clone(),
             world_frame: config.node.world_frame.clone(),
             dt: config.physics.dt as f64,
             diagnostics_period: config.node.diagnostics_period as f64,
@@ -322,6 +324,17 @@ impl Outputs {
             tick_ms: Vec::new(),
             stats: RunStats::default(),
         }
+    }
+
+    /// Camera `name`'s optical frame: the template's, or its CameraInfo's frame_id.
+    fn optical_frame(&self, name: &str) -> String {
+        let header = self
+            .shared
+            .lock()
+            .ok()
+            .and_then(|s| Some(s.infos.get(name)?.header.frame_id.clone()))
+            .unwrap_or_default();
+        self.node.optical_frame_of(name, &header)
     }
 
     /// The run's statistics after `elapsed` seconds of ticking.
@@ -400,7 +413,10 @@ impl Observer for Outputs {
         let newest_image = images.iter().map(|i| i.stamp).reduce(f64::max);
         let debug = (self.debug_every > 0 && self.stats.ticks.is_multiple_of(self.debug_every))
             .then(|| {
-                let cameras = images.iter().map(|i| (i.name.clone(), i.camera)).collect();
+                let cameras = images
+                    .iter()
+                    .map(|i| (i.name.clone(), i.camera, self.optical_frame(&i.name)))
+                    .collect();
                 (GaussianCloud::from_world(world), cameras)
             });
         let diagnostics = self.diagnostics(&header, tick);

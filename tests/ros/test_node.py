@@ -332,6 +332,7 @@ def test_object_messages_are_complete(main_run):
     assert tf.transforms[0].child_frame_id == "box" and tf.transforms[0].header.frame_id == "world"
     # The compressed debug image is a lossless PNG of the raw one.
     _, raw = main_run["recorder"].got["debug"][-1]
+    assert raw.header.frame_id == "cam0_color_optical_frame", raw.header.frame_id
     assert (raw.width, raw.height, raw.encoding) == (160, 90, "rgb8") and len(raw.data) == 160 * 90 * 3
     _, compressed = main_run["recorder"].got["debug_compressed"][-1]
     assert "png" in compressed.format and bytes(compressed.data[:8]) == b"\x89PNG\r\n\x1a\n"
