@@ -7,6 +7,7 @@ use super::rss_mb;
 use super::subscribe::Shared;
 use crate::inputs::TickInputs;
 use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue};
+use crate::topics::NodeConfig;
 
 /// What the ticks since the last diagnostics measured.
 #[derive(Default)]
@@ -62,6 +63,50 @@ pub fn diagnostics(
         header: header.clone(),
         status: all,
     })
+}
+
+/// Before tracking starts: what each configured camera still lacks (CameraInfo, the tf chain to
+/// its optical frame, a first image when the scene is built from them), as a WARN status.
+pub fn waiting_diagnostics(
+    header: &Header,
+    s: &Shared,
+    nc: &NodeConfig,
+    needs_images: bool,
+    waited: f64,
+) -> DiagnosticArray {
+    let mut missing = Vec::new();
+    for camera in &nc.cameras {
+        let info = s.infos.get(camera);
+        if info.is_none() {
+            missing.push(format!("{camera} CameraInfo"));
+        } else if !s.camera_poses.contains_key(camera) {
+            let header_frame = info.map_or("", |i| i.header.frame_id.as_str());
+            let frame = nc.optical_frame_of(camera, header_frame);
+            missing.push(format!("{camera} tf {} -> {frame}", nc.world_frame));
+        }
+        if needs_images && !s.first_images.contains_key(camera) {
+            missing.push(format!("{camera} first image"));
+        }
+    }
+    let message = if missing.is_empty() {
+        "starting".to_string()
+    } else {
+        format!("waiting for: {}", missing.join(", "))
+    };
+    let values = vec![
+        kv("waited_s", format!("{waited:.1}")),
+        kv("camera_wait_s", nc.camera_wait),
+    ];
+    DiagnosticArray {
+        header: header.clone(),
+        status: vec![status(
+            DiagnosticStatus::WARN,
+            "pegs: start-up".into(),
+            message,
+            "pegs",
+            values,
+        )],
+    }
 }
 
 fn tick_status(window: &Window, stats: &RunStats, dt: f64) -> DiagnosticStatus {

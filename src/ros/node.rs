@@ -8,7 +8,7 @@
 
 use super::log;
 use super::params::{self, LaunchArgs};
-use super::publish::{TickOutput, create_publishers, publish_loop};
+use super::publish::{Output, create_publishers, publish_loop};
 use super::subscribe::{Shared, subscribe};
 use super::tick::tick_loop;
 use crate::config::Config;
@@ -158,7 +158,7 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
         1.0 / config.physics.dt
     ));
     let stop = Arc::new(AtomicBool::new(false));
-    let (tx, rx) = sync_channel::<TickOutput>(1);
+    let (tx, rx) = sync_channel::<Output>(1);
     let latencies = Arc::new(Mutex::new(Vec::<f64>::new()));
     let publisher_thread = {
         let latencies = latencies.clone();

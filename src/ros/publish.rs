@@ -28,6 +28,13 @@ pub struct TickOutput {
     pub diagnostics: Option<DiagnosticArray>,
 }
 
+/// What the tick thread hands the publishing thread: a tick's messages, or, before tracking
+/// starts, diagnostics saying what the node waits for.
+pub enum Output {
+    Tick(Box<TickOutput>),
+    Waiting(DiagnosticArray),
+}
+
 /// A camera to render a debug image for: name, model and optical frame (the image's frame_id).
 pub type DebugView = (String, Camera, String);
 
@@ -110,7 +117,7 @@ pub fn create_publishers(node: &mut Node, nc: &NodeConfig) -> Result<Publishers>
 
 /// Publish every output that arrives until the tick thread hangs up.
 pub fn publish_loop(
-    rx: std::sync::mpsc::Receiver<TickOutput>,
+    rx: std::sync::mpsc::Receiver<Output>,
     publishers: Publishers,
     render: crate::render::RenderSettings,
     latencies: Arc<Mutex<Vec<f64>>>,
@@ -124,6 +131,15 @@ pub fn publish_loop(
         }
     };
     while let Ok(out) = rx.recv() {
+        let out = match out {
+            Output::Tick(out) => *out,
+            Output::Waiting(d) => {
+                if let Err(e) = publishers.diagnostics.publish(d) {
+                    fail("diagnostics", format!("{e:?}"));
+                }
+                continue;
+            }
+        };
         let tf = outputs::object_frames(&out.objects);
         let poses = outputs::pose_array(&out.objects);
         if let Err(e) = publishers.objects.publish(out.objects) {

@@ -4,9 +4,9 @@
 //! on the node's clock, on whatever is newest, skipping ticks whose deadline passed instead of
 //! queueing them. What each tick produced goes to the publishing thread (`Outputs`).
 
-use super::diagnostics::{Window, diagnostics};
+use super::diagnostics::{Window, diagnostics, waiting_diagnostics};
 use super::node::RunStats;
-use super::publish::TickOutput;
+use super::publish::{Output, TickOutput};
 use super::subscribe::Shared;
 use super::{log, now, outputs, rss_mb};
 use crate::config::Config;
@@ -30,11 +30,11 @@ pub fn tick_loop(
     config: Config,
     shared: Arc<Mutex<Shared>>,
     live: Arc<Mutex<Config>>,
-    tx: SyncSender<TickOutput>,
+    tx: SyncSender<Output>,
     stop: Arc<AtomicBool>,
 ) -> Result<RunStats> {
     let rss_mb_start = rss_mb();
-    let Some(mut tracker) = start_tracker(&config, &shared, &stop)? else {
+    let Some(mut tracker) = start_tracker(&config, &shared, &stop, &tx)? else {
         return Ok(RunStats {
             rss_mb_start,
             ..Default::default()
@@ -115,16 +115,31 @@ fn ready_cameras(s: &Shared, nc: &NodeConfig) -> Vec<(String, Camera)> {
         .collect()
 }
 
-/// Wait for the cameras, then build the scene and its tracker; None if stopped first.
+/// Wait for the cameras, then build the scene and its tracker; None if stopped first. While
+/// waiting, `/diagnostics` says what for, every `node.diagnostics_period`.
 fn start_tracker(
     config: &Config,
     shared: &Mutex<Shared>,
     stop: &AtomicBool,
+    tx: &SyncSender<Output>,
 ) -> Result<Option<Tracker>> {
     let nc = &config.node;
     let started = now();
     let mut told = false;
+    let mut said_at = f64::NEG_INFINITY;
     loop {
+        if now() - said_at >= nc.diagnostics_period as f64 {
+            said_at = now();
+            let s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
+            let header = Header {
+                stamp: Time::from_seconds(said_at),
+                frame_id: String::new(),
+            };
+            let needs_images = config.scene.scenario.is_none();
+            let waiting = waiting_diagnostics(&header, &s, nc, needs_images, said_at - started);
+            // A full channel only means the publisher is busy; the next period says it again.
+            let _ = tx.try_send(Output::Waiting(waiting));
+        }
         if stop.load(Ordering::SeqCst) {
             return Ok(None);
         }
@@ -291,7 +306,7 @@ fn usable<T>(camera: &str, what: &str, decoded: Result<T, String>) -> Option<T> 
 /// run's statistics and the window of numbers `/diagnostics` reports.
 struct Outputs {
     shared: Arc<Mutex<Shared>>,
-    tx: SyncSender<TickOutput>,
+    tx: SyncSender<Output>,
     node: NodeConfig,
     world_frame: String,
     dt: f64,
@@ -308,7 +323,7 @@ struct Outputs {
 }
 
 impl Outputs {
-    fn new(config: &Config, shared: Arc<Mutex<Shared>>, tx: SyncSender<TickOutput>) -> Self {
+    fn new(config: &Config, shared: Arc<Mutex<Shared>>, tx: SyncSender<Output>) -> Self {
         Self {
             shared,
             tx,
@@ -429,7 +444,7 @@ impl Observer for Outputs {
             debug,
             diagnostics,
         };
-        match self.tx.try_send(output) {
+        match self.tx.try_send(Output::Tick(Box::new(output))) {
             Ok(()) => {}
             Err(TrySendError::Full(_)) => self.stats.dropped_outputs += 1,
             Err(TrySendError::Disconnected(_)) => bail!("the publishing thread stopped"),

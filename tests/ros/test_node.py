@@ -600,3 +600,32 @@ def test_depth_and_mask_subscriptions_end_once_tracking_runs(recording, ros):
     assert f"{depth}: no longer needed; unsubscribed" in log, log
     assert f"{info}: malformed message" in log, "garbage reaches a subscribed topic"
     assert f"{depth}: malformed message" not in log, "the depth subscription still receives"
+
+
+def test_diagnostics_say_what_the_node_waits_for_before_tracking(recording, ros):
+    """From start-up, before any camera is ready, /diagnostics says what the node waits for:
+    each camera's CameraInfo and first image by name; once CameraInfo but no tf arrives for a
+    camera, the tf chain it needs."""
+    node = rclpy.create_node("pegs_test_waiting")
+    recorder = Recorder(node)
+    proc, stats_path = start_node(recording, "waiting")
+    player = Player(node, str(recording / "recording"))
+    wait_for_discovery(node, player)
+    spin_for(node, 2.5)
+    first = [m for _, m in recorder.got.get("diagnostics", [])]
+    # Now CameraInfo of every camera, but no /tf_static: the tf chains are what is missing.
+    player.tf_static = None
+    player.paused_topics.update({"/camera/cam0/color/image_raw", "/camera/cam1/color/image_raw", "/camera/cam2/color/image_raw"})
+    player.begin(time.time() + 0.1)
+    spin_for(node, 2.5, player)
+    later = [m for _, m in recorder.got.get("diagnostics", [])]
+    stop_node(proc, stats_path)
+    node.destroy_node()
+    assert first, "no /diagnostics before tracking"
+    start = {s.name: s for s in first[0].status}["pegs: start-up"]
+    assert level(start) == 1, start
+    for part in ["cam0 CameraInfo", "cam2 CameraInfo"]:
+        assert part in start.message, start.message
+    last = {s.name: s for s in later[-1].status}["pegs: start-up"]
+    assert "cam1 tf world -> cam1_color_optical_frame" in last.message, last.message
+    assert "CameraInfo" not in last.message, last.message
