@@ -27,8 +27,18 @@ pub fn now() -> f64 {
         .map_or(0.0, |d| d.as_secs_f64())
 }
 
+/// Where `log` also sends its lines while a node runs: the node forwards them to `/rosout`.
+static ROSOUT: std::sync::Mutex<Option<tokio::sync::mpsc::UnboundedSender<String>>> =
+    std::sync::Mutex::new(None);
+
+/// A line for the operator: on stderr, and on `/rosout` while the node runs.
 fn log(line: &str) {
     eprintln!("[pegs {:.3}] {line}", now());
+    if let Ok(rosout) = ROSOUT.lock()
+        && let Some(tx) = rosout.as_ref()
+    {
+        let _ = tx.send(line.to_string());
+    }
 }
 
 /// Resident memory of this process in MB (Linux; 0 elsewhere).

@@ -147,6 +147,10 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
         .new_node(node_name.clone(), node_options(&config, &live)?)
         .map_err(|e| anyhow!("cannot create node: {e:?}"))?;
     tokio::spawn(node.spinner().map_err(|e| anyhow!("{e:?}"))?.spin());
+    let (rosout_tx, mut rosout_rx) = tokio::sync::mpsc::unbounded_channel::<String>();
+    if let Ok(mut rosout) = super::ROSOUT.lock() {
+        *rosout = Some(rosout_tx);
+    }
     let nc = config.node.clone();
     let shared = Arc::new(Mutex::new(Shared::default()));
     let publishers = create_publishers(&mut node, &nc)?;
@@ -180,7 +184,30 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
                 result
             })?
     };
-    wait_for_stop(options.duration, ended).await?;
+    // Log lines go to /rosout from here on (and those queued since start-up).
+    let to_rosout = async {
+        use ros2_client::RosoutRaw;
+        while let Some(line) = rosout_rx.recv().await {
+            let stamp = ros2_client::builtin_interfaces::Time::now();
+            let level = ros2_client::log::LogLevel::Info;
+            node.rosout_raw(
+                stamp,
+                level,
+                node.base_name(),
+                &line,
+                file!(),
+                "pegs",
+                line!(),
+            );
+        }
+    };
+    tokio::select! {
+        stopped = wait_for_stop(options.duration, ended) => stopped?,
+        _ = to_rosout => {}
+    }
+    if let Ok(mut rosout) = super::ROSOUT.lock() {
+        *rosout = None;
+    }
     stop.store(true, Ordering::SeqCst);
     let mut stats = tick_thread
         .join()

@@ -629,3 +629,21 @@ def test_diagnostics_say_what_the_node_waits_for_before_tracking(recording, ros)
     last = {s.name: s for s in later[-1].status}["pegs: start-up"]
     assert "cam1 tf world -> cam1_color_optical_frame" in last.message, last.message
     assert "CameraInfo" not in last.message, last.message
+
+
+def test_log_lines_reach_rosout(recording, ros):
+    """What the node logs reaches /rosout under its name, so `ros2 topic echo /rosout` and
+    rqt_console show it: the start-up line and the tracking line."""
+    from rcl_interfaces.msg import Log
+    node = rclpy.create_node("pegs_test_rosout")
+    lines = []
+    node.create_subscription(Log, "/rosout", lambda m: lines.append(m), 100)
+    proc, stats_path = start_node(recording, "rosout")
+    player = Player(node, str(recording / "recording"))
+    wait_for_discovery(node, player)
+    player.begin(time.time() + 0.2)
+    spin_for(node, 3.0, player)
+    stop_node(proc, stats_path)
+    node.destroy_node()
+    ours = [m for m in lines if m.name == "pegs"]
+    assert any("tracking 1 object(s)" in m.msg for m in ours), [m.msg for m in ours]
