@@ -163,20 +163,44 @@ pub fn parse_ros_args(args: &[String]) -> Result<LaunchArgs> {
 }
 
 /// The configuration the node starts with: `base` (a file or the defaults), then each
-/// `--params-file` in order, then each `-p`.
+/// `--params-file` in order, then each `-p`. A parameter file applies, in its order, the sections
+/// whose key matches the node's fully qualified name as rcl matches them (`/ns/name`, `name`, `/**`,
+/// `/**/name`, `*` for one token); keys a wildcard section sets that pegs does not have (another
+/// node's parameters) are ignored with a log line, while an unknown key in the node's own section is
+/// an error. `use_sim_time: false` is accepted; `true` is refused (the node runs on the wall clock).
 pub fn launch_config(base: Config, args: &LaunchArgs) -> Result<Config> {
+    let node = fully_qualified_name(args);
     let mut config = base;
     for file in &args.params_files {
         let text = std::fs::read_to_string(file)
             .with_context(|| format!("cannot read {}", file.display()))?;
         let yaml: serde_yaml_ng::Value = serde_yaml_ng::from_str(&text)
             .with_context(|| format!("{} is not valid YAML", file.display()))?;
-        let params = crate::config::ros_parameters(&yaml).unwrap_or(&yaml);
-        let mut leaves = Vec::new();
-        leaves_of(&serde_json::to_value(params)?, String::new(), &mut leaves);
-        for (name, value) in leaves {
-            config = with_parameter(&config, &name, value)
-                .with_context(|| format!("in {}", file.display()))?;
+        for (key, params) in sections_for(&yaml, &node) {
+            let wildcard = key.contains('*');
+            let mut leaves = Vec::new();
+            leaves_of(&serde_json::to_value(params)?, String::new(), &mut leaves);
+            for (name, value) in leaves {
+                if name == "use_sim_time" {
+                    if value == Value::Bool(true) {
+                        bail!(
+                            "{}: use_sim_time true is not supported: pegs node ticks on the wall \
+                             clock",
+                            file.display()
+                        );
+                    }
+                    continue;
+                }
+                if wildcard && !is_parameter(&config, &name) {
+                    super::log(&format!(
+                        "{}: '{name}' under '{key}' is not a pegs parameter; ignored",
+                        file.display()
+                    ));
+                    continue;
+                }
+                config = with_parameter(&config, &name, value)
+                    .with_context(|| format!("in {} under '{key}'", file.display()))?;
+            }
         }
     }
     for (name, text) in &args.overrides {
@@ -186,6 +210,79 @@ pub fn launch_config(base: Config, args: &LaunchArgs) -> Result<Config> {
             .with_context(|| format!("-p {name}:={text}"))?;
     }
     Ok(config)
+}
+
+/// The node's fully qualified name from `-r __ns:=` and `-r __node:=` (default `/pegs`).
+pub fn fully_qualified_name(args: &LaunchArgs) -> String {
+    let ns = args
+        .namespace
+        .as_deref()
+        .unwrap_or("/")
+        .trim_end_matches('/');
+    let name = args.node_name.as_deref().unwrap_or("pegs");
+    format!("{ns}/{name}")
+}
+
+/// The `ros__parameters` sections of a parameter file that apply to `node`, with their keys, in
+/// file order. A file without node sections (pegs's own layout) applies whole.
+fn sections_for<'a>(
+    yaml: &'a serde_yaml_ng::Value,
+    node: &str,
+) -> Vec<(String, &'a serde_yaml_ng::Value)> {
+    let Some(map) = yaml.as_mapping() else {
+        return Vec::new();
+    };
+    let sections: Vec<(String, &serde_yaml_ng::Value)> = map
+        .iter()
+        .filter_map(|(k, v)| {
+            Some((
+                k.as_str()?.to_string(),
+                v.as_mapping()?.get("ros__parameters")?,
+            ))
+        })
+        .collect();
+    if sections.is_empty() {
+        return vec![(node.to_string(), yaml)];
+    }
+    sections
+        .into_iter()
+        .filter(|(key, _)| node_key_matches(key, node))
+        .collect()
+}
+
+/// Whether a parameter-file key (`/ns/name`, `name`, with `**` for any number of tokens and `*`
+/// for one) names the node `/ns/name`.
+pub fn node_key_matches(key: &str, node: &str) -> bool {
+    fn tokens(s: &str) -> Vec<&str> {
+        s.split('/').filter(|t| !t.is_empty()).collect()
+    }
+    fn matches(pattern: &[&str], name: &[&str]) -> bool {
+        match (pattern.first(), name.first()) {
+            (None, None) => true,
+            (Some(&"**"), _) => {
+                matches(&pattern[1..], name) || (!name.is_empty() && matches(pattern, &name[1..]))
+            }
+            (Some(p), Some(n)) if *p == "*" || p == n => matches(&pattern[1..], &name[1..]),
+            _ => false,
+        }
+    }
+    // With or without its leading '/', a key is a path from the root: `pegs` is `/pegs`.
+    matches(&tokens(key), &tokens(node))
+}
+
+/// Whether `name` is a parameter of the configuration (a path to a leaf).
+fn is_parameter(config: &Config, name: &str) -> bool {
+    let Ok(tree) = serde_json::to_value(config) else {
+        return false;
+    };
+    let mut at = &tree;
+    for key in name.split('.') {
+        match at.as_object().and_then(|m| m.get(key)) {
+            Some(next) => at = next,
+            None => return false,
+        }
+    }
+    true
 }
 
 /// Every leaf (non-mapping value) of a tree with its dotted path.
@@ -275,7 +372,7 @@ mod tests {
         let file = dir.join("p.yaml");
         std::fs::write(
             &file,
-            "pegs:\n  ros__parameters:\n    correct:\n      gain: 0.7\n      damping: 0.02\n",
+            "tracker:\n  ros__parameters:\n    correct:\n      gain: 0.7\n      damping: 0.02\n",
         )
         .unwrap();
         let args: Vec<String> = [
@@ -312,5 +409,53 @@ mod tests {
         assert!(is_live("correct.gain"));
         assert!(!is_live("correct.backend"));
         assert!(!is_live("physics.dt"));
+    }
+
+    /// A multi-node parameter file as ROS users write them: `/**` for every node (with keys other
+    /// nodes use), the node by name, another node's section. The node takes `/**` and its own
+    /// section in file order, ignores the others and the foreign `/**` keys, and refuses an unknown
+    /// key in its own section and `use_sim_time: true`.
+    #[test]
+    fn parameter_files_apply_the_sections_that_name_the_node() {
+        assert!(node_key_matches("/**", "/pegs"));
+        assert!(node_key_matches("pegs", "/pegs"));
+        assert!(node_key_matches("/**/pegs", "/rig/pegs"));
+        assert!(node_key_matches("/rig/*", "/rig/pegs"));
+        assert!(!node_key_matches("pegs", "/rig/pegs"));
+        assert!(!node_key_matches("/camera/cam0", "/pegs"));
+        let dir = std::env::temp_dir().join(format!("pegs-params-multi-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("rig.yaml");
+        std::fs::write(
+            &file,
+            "/**:\n  ros__parameters:\n    use_sim_time: false\n    align_depth.enable: true\n    \
+             correct:\n      gain: 0.5\n/camera/cam0:\n  ros__parameters:\n    correct:\n      \
+             gain: 9.0\n    serial_no: '123'\npegs:\n  ros__parameters:\n    correct:\n      \
+             damping: 0.03\n",
+        )
+        .unwrap();
+        let args = |extra: &[&str]| {
+            let mut a = vec!["--params-file".to_string(), file.display().to_string()];
+            a.extend(extra.iter().map(|s| s.to_string()));
+            parse_ros_args(&a).unwrap()
+        };
+        let c = launch_config(Config::default(), &args(&[])).unwrap();
+        assert_eq!((c.correct.gain, c.correct.damping), (0.5, 0.03));
+        // Renamed, the `pegs` section no longer applies; `/**` still does.
+        let c = launch_config(Config::default(), &args(&["-r", "__node:=tracker"])).unwrap();
+        assert_eq!(c.correct.gain, 0.5);
+        assert_eq!(c.correct.damping, Config::default().correct.damping);
+        std::fs::write(&file, "pegs:\n  ros__parameters:\n    gain: 1.0\n").unwrap();
+        let e = format!(
+            "{:#}",
+            launch_config(Config::default(), &args(&[])).unwrap_err()
+        );
+        assert!(e.contains("no parameter 'gain'"), "{e}");
+        std::fs::write(&file, "/**:\n  ros__parameters:\n    use_sim_time: true\n").unwrap();
+        let e = format!(
+            "{:#}",
+            launch_config(Config::default(), &args(&[])).unwrap_err()
+        );
+        assert!(e.contains("use_sim_time"), "{e}");
     }
 }
