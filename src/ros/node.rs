@@ -153,8 +153,9 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
     }
     let nc = config.node.clone();
     let shared = Arc::new(Mutex::new(Shared::default()));
-    let publishers = create_publishers(&mut node, &nc)?;
-    subscribe(&context, &node_name, &mut node, &nc, shared.clone())?;
+    let publishers = create_publishers(&mut node, &nc, &launch.remaps)?;
+    let remaps = &launch.remaps;
+    subscribe(&context, &node_name, &mut node, &nc, shared.clone(), remaps)?;
     log(&format!(
         "node {} up: cameras {:?}, rate {:.1} Hz",
         node.fully_qualified_name(),

@@ -122,6 +122,25 @@ pub struct LaunchArgs {
     pub node_name: Option<String>,
     /// `-r __ns:=/namespace`
     pub namespace: Option<String>,
+    /// `-r /from:=/to`: topic remaps.
+    pub remaps: Remaps,
+}
+
+/// Topic remaps from `-r from:=to`, by fully qualified name (a name without a leading '/' is
+/// taken from the root).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Remaps(pub Vec<(String, String)>);
+
+impl Remaps {
+    /// The topic `name` is remapped to, or `name` itself.
+    pub fn apply(&self, name: &str) -> String {
+        let absolute = |n: &str| format!("/{}", n.trim_start_matches('/'));
+        let name = absolute(name);
+        self.0
+            .iter()
+            .find(|(from, _)| absolute(from) == name)
+            .map_or(name, |(_, to)| absolute(to))
+    }
 }
 
 /// Parse the arguments after `--ros-args` (up to an optional `--`).
@@ -146,7 +165,12 @@ pub fn parse_ros_args(args: &[String]) -> Result<LaunchArgs> {
                 match item.split_once(":=") {
                     Some(("__node" | "__name", name)) => out.node_name = Some(name.to_string()),
                     Some(("__ns", ns)) => out.namespace = Some(ns.to_string()),
-                    _ => bail!("-r {item}: only __node:= and __ns:= remaps are supported"),
+                    Some((from, to)) if !from.starts_with("__") && !to.is_empty() => {
+                        out.remaps.0.push((from.to_string(), to.to_string()))
+                    }
+                    _ => bail!(
+                        "-r {item}: expected /topic:=/other, __node:=name or __ns:=/namespace"
+                    ),
                 }
             }
             // Accepted and ignored: logging options.
@@ -155,7 +179,7 @@ pub fn parse_ros_args(args: &[String]) -> Result<LaunchArgs> {
             }
             "--ros-args" => {}
             other => bail!(
-                "unsupported ROS argument '{other}' (supported: -p, --params-file, -r __node:=, -r __ns:=, --log-level)"
+                "unsupported ROS argument '{other}' (supported: -p, --params-file, -r from:=to, -r __node:=, -r __ns:=, --log-level)"
             ),
         }
     }
@@ -417,6 +441,13 @@ mod tests {
     /// key in its own section and `use_sim_time: true`.
     #[test]
     fn parameter_files_apply_the_sections_that_name_the_node() {
+        let remaps = parse_ros_args(&["-r".into(), "/joint_states:=/fr3/joint_states".into()])
+            .unwrap()
+            .remaps;
+        assert_eq!(remaps.apply("/joint_states"), "/fr3/joint_states");
+        assert_eq!(remaps.apply("joint_states"), "/fr3/joint_states");
+        assert_eq!(remaps.apply("/tf"), "/tf");
+        assert!(parse_ros_args(&["-r".into(), "__bad:=x".into()]).is_err());
         assert!(node_key_matches("/**", "/pegs"));
         assert!(node_key_matches("pegs", "/pegs"));
         assert!(node_key_matches("/**/pegs", "/rig/pegs"));

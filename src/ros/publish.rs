@@ -3,6 +3,7 @@
 //! a tick's output is dropped if the previous one is still being sent. Failures are logged (the
 //! first few) and never stop the thread.
 
+use super::params::Remaps;
 use super::subscribe::{sensor_qos, state_qos, topic_name};
 use super::{log, now, outputs};
 use crate::msgs::{
@@ -48,14 +49,15 @@ pub struct Publishers {
 }
 
 /// Every output topic, under `node.output_prefix`.
-pub fn create_publishers(node: &mut Node, nc: &NodeConfig) -> Result<Publishers> {
+pub fn create_publishers(node: &mut Node, nc: &NodeConfig, remaps: &Remaps) -> Result<Publishers> {
     fn make<T: serde::Serialize>(
-        node: &mut Node,
+        (node, remaps): (&mut Node, &Remaps),
         name: &str,
         package: &str,
         ty: &str,
         qos: QosProfile,
     ) -> Result<Publisher<T>> {
+        let name = &remaps.apply(name);
         let topic = node
             .create_topic(&topic_name(name)?, MessageTypeName::new(package, ty), &qos)
             .map_err(|e| anyhow!("topic {name}: {e:?}"))?;
@@ -66,14 +68,14 @@ pub fn create_publishers(node: &mut Node, nc: &NodeConfig) -> Result<Publishers>
     let mut debug = BTreeMap::new();
     for cam in &nc.cameras {
         let raw = make(
-            node,
+            (node, remaps),
             &format!("{p}/debug/{cam}/image"),
             "sensor_msgs",
             "Image",
             sensor_qos(),
         )?;
         let compressed = make(
-            node,
+            (node, remaps),
             &format!("{p}/debug/{cam}/image/compressed"),
             "sensor_msgs",
             "CompressedImage",
@@ -83,29 +85,35 @@ pub fn create_publishers(node: &mut Node, nc: &NodeConfig) -> Result<Publishers>
     }
     Ok(Publishers {
         objects: make(
-            node,
+            (node, remaps),
             &format!("{p}/objects"),
             "pegs",
             "TrackedObjectArray",
             state_qos(10),
         )?,
         poses: make(
-            node,
+            (node, remaps),
             &format!("{p}/poses"),
             "geometry_msgs",
             "PoseArray",
             state_qos(10),
         )?,
         cloud: make(
-            node,
+            (node, remaps),
             &format!("{p}/particles"),
             "sensor_msgs",
             "PointCloud2",
             sensor_qos(),
         )?,
-        tf: make(node, "/tf", "tf2_msgs", "TFMessage", state_qos(100))?,
+        tf: make(
+            (node, remaps),
+            "/tf",
+            "tf2_msgs",
+            "TFMessage",
+            state_qos(100),
+        )?,
         diagnostics: make(
-            node,
+            (node, remaps),
             "/diagnostics",
             "diagnostic_msgs",
             "DiagnosticArray",

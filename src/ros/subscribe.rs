@@ -4,6 +4,7 @@
 //! them. A message that cannot be decoded is counted and logged; nothing a publisher sends stops
 //! a task.
 
+use super::params::Remaps;
 use super::{log, now};
 use crate::inputs::Inputs;
 use crate::math::Pose;
@@ -166,6 +167,7 @@ struct Subscriber<'a> {
     node_name: &'a NodeName,
     node: &'a mut Node,
     shared: Arc<Mutex<Shared>>,
+    remaps: &'a Remaps,
 }
 
 impl Subscriber<'_> {
@@ -220,6 +222,7 @@ impl Subscriber<'_> {
         handle: impl Fn(&mut Shared, T) + Send + 'static,
         done: fn(&Shared) -> bool,
     ) -> Result<()> {
+        let name = &self.remaps.apply(name);
         let topic = self.create_topic(name, MessageTypeName::new(package, ty), &qos)?;
         let subscription = self
             .node
@@ -269,12 +272,14 @@ pub fn subscribe(
     node: &mut Node,
     nc: &NodeConfig,
     shared: Arc<Mutex<Shared>>,
+    remaps: &Remaps,
 ) -> Result<()> {
     let mut s = Subscriber {
         context,
         node_name,
         node,
         shared,
+        remaps,
     };
     for cam in nc.cameras.clone() {
         let topic = |template: &str| NodeConfig::for_camera(template, &cam);

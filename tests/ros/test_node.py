@@ -647,3 +647,27 @@ def test_log_lines_reach_rosout(recording, ros):
     node.destroy_node()
     ours = [m for m in lines if m.name == "pegs"]
     assert any("tracking 1 object(s)" in m.msg for m in ours), [m.msg for m in ours]
+
+
+def test_topic_remaps_rename_what_the_node_publishes_and_reads(recording, ros):
+    """`-r from:=to` as ROS users write it: the poses come out on the remapped name, and a camera
+    whose image topic is remapped away from what is played gets no images (reported as such)."""
+    node = rclpy.create_node("pegs_test_remap")
+    recorder = Recorder(node)
+    got = []
+    node.create_subscription(PoseArray, "/tracked_poses", lambda m: got.append(m), 50)
+    extra = ("-r", "/pegs/poses:=/tracked_poses", "-r", "/camera/cam2/color/image_raw:=/elsewhere/image")
+    proc, stats_path = start_node(recording, "remap", extra)
+    player = Player(node, str(recording / "recording"))
+    end = time.time() + 20
+    while time.time() < end and (node.count_publishers("/tracked_poses") == 0 or node.count_subscribers("/camera/cam0/color/image_raw") == 0):
+        rclpy.spin_once(node, timeout_sec=0.05)
+    spin_for(node, 0.5)
+    player.begin(time.time() + 0.2)
+    spin_for(node, RUN_SECONDS, player)
+    stop_node(proc, stats_path)
+    node.destroy_node()
+    assert len(got) >= 5, f"{len(got)} poses on /tracked_poses"
+    assert recorder.count("poses") == 0, "nothing on the original name"
+    status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
+    assert level(status["pegs: camera cam2"]) == 2, status["pegs: camera cam2"].message
