@@ -369,9 +369,7 @@ impl Inputs {
             Some((received, urdf)) => {
                 let mut copy = js.clone();
                 for name in &mut copy.name {
-                    if let Some(rest) = name.strip_prefix(received.as_str()) {
-                        *name = format!("{urdf}{rest}");
-                    }
+                    *name = crate::robot::joint_name_for_urdf(name, received, urdf);
                 }
                 renamed = copy;
                 &renamed

@@ -50,14 +50,10 @@ pub fn info(bag: &Path, config: &Config) -> Result<BagInfo> {
     let renamed: Vec<String> = survey
         .joint_names
         .iter()
-        .map(
-            |j| match j.strip_prefix(robot.joint_prefix_received.as_str()) {
-                Some(rest) if !robot.joint_prefix_received.is_empty() => {
-                    format!("{}{rest}", robot.joint_prefix_urdf)
-                }
-                _ => j.clone(),
-            },
-        )
+        .map(|j| {
+            let (received, urdf) = (&robot.joint_prefix_received, &robot.joint_prefix_urdf);
+            crate::robot::joint_name_for_urdf(j, received, urdf)
+        })
         .collect();
     let (matched, missing) = movable.iter().cloned().partition(|j| renamed.contains(j));
     let unknown_joints = survey

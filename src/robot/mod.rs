@@ -67,6 +67,15 @@ impl Default for RobotConfig {
     }
 }
 
+/// A driver's joint name as the URDF has it: `received` replaced by `urdf` at its start (`fr3_`
+/// for `panda_`); unchanged when `received` is empty or not its prefix.
+pub fn joint_name_for_urdf(name: &str, received: &str, urdf: &str) -> String {
+    match name.strip_prefix(received) {
+        Some(rest) if !received.is_empty() => format!("{urdf}{rest}"),
+        _ => name.to_string(),
+    }
+}
+
 impl RobotConfig {
     /// Relative paths (the URDF, package directories) made relative to `dir`, the
     /// configuration's folder.
