@@ -4,7 +4,7 @@
 # tree: the user publishes world -> camN_link on /tf_static (e.g. a hand-eye calibration), the
 # drivers publish camN_link -> ... -> camN_color_optical_frame; joint states from the Franka
 # driver's /joint_states. Extra arguments go to the node, e.g.
-#   franka_3xd455.sh --ros-args -p correct.gain:=1.0
+#   franka_3xd455.sh --ros-args -p correct.gain:=1000.0
 # Usage: franka_3xd455.sh [CONFIG.yaml] [-- node arguments]
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)

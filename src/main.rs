@@ -269,7 +269,7 @@ struct AblateArgs {
     pub resolutions: Vec<(u32, u32)>,
     #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 3])]
     pub cameras: Vec<usize>,
-    #[arg(long, value_delimiter = ',', default_values_t = [0.5, 1.0, 1.5, 3.0, 6.0])]
+    #[arg(long, value_delimiter = ',', default_values_t = [500.0, 1000.0, 1500.0, 3000.0, 6000.0])]
     pub gains: Vec<f32>,
     #[arg(long, value_delimiter = ',', default_values_t = [0.0005, 0.0015, 0.005, 0.015])]
     pub learning_rates: Vec<f32>,

@@ -283,10 +283,14 @@ fn a_short_slice_is_imported_aligned_and_tracked() {
     assert_eq!(iou.len(), 3);
     let means: Vec<f64> = iou.values().map(|s| s["mean"].as_f64().unwrap()).collect();
     println!("silhouette IoU per camera {iou:?}");
+    // Every camera is measured at (nearly) every tick: the import interleaves the cameras in
+    // stamp order, so the replay meets them together.
+    let ticks = m["ticks"].as_u64().unwrap();
     assert!(
         iou.values()
             .all(|s| s["p5"].as_f64().unwrap() <= s["mean"].as_f64().unwrap()
-                && s["frames"].as_u64().unwrap() >= 15)
+                && s["frames"].as_u64().unwrap() + 3 >= ticks),
+        "{iou:?} over {ticks} ticks"
     );
     // The two cameras that see the block unhidden (the third looks past the arm).
     assert!(means[0] > 0.75 && means[1] > 0.75, "{means:?}");

@@ -290,7 +290,7 @@ fn the_ablation_sweep_writes_plots_and_a_summary_row_per_setting() {
         "--cameras",
         "1,3",
         "--gains",
-        "0,1.5",
+        "0,1500",
         "--learning-rates",
         "0.0015",
         "--iterations",
@@ -333,10 +333,10 @@ fn the_ablation_sweep_writes_plots_and_a_summary_row_per_setting() {
     // Gain 0 leaves only physics, which cannot know the 1 cm start error: the sweep really
     // changes the tracker's settings.
     assert!(
-        mean("gain 0") > mean("gain 1.5") + 1.0,
+        mean("gain 0") > mean("gain 1500") + 1.0,
         "gain 0 {} vs 1.5 {}",
         mean("gain 0"),
-        mean("gain 1.5")
+        mean("gain 1500")
     );
 }
 

@@ -43,7 +43,7 @@ impl Default for SweepOptions {
             seconds: 4.5,
             resolutions: vec![(1280, 720), (640, 360), (320, 180), (160, 90)],
             cameras: vec![1, 2, 3],
-            gains: vec![0.5, 1.0, 1.5, 3.0, 6.0],
+            gains: vec![500.0, 1000.0, 1500.0, 3000.0, 6000.0],
             learning_rates: vec![0.0005, 0.0015, 0.005, 0.015],
             iterations: vec![1, 2, 5, 10],
         }

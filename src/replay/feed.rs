@@ -122,8 +122,9 @@ impl<'a> Feed<'a> {
                     if !self.overflow_said {
                         self.overflow_said = true;
                         self.inputs.log.say(format!(
-                            "camera {camera}: images are logged far from their stamps; offering \
-                             them early to bound memory (stamp {early:.3} s)"
+                            "camera {camera}: over {MAX_PENDING} images wait for the clock (the \
+                             bag is not in time order, or its log times are far from the stamps); \
+                             offering them early to bound memory (stamp {early:.3} s)"
                         ));
                     }
                     self.offer(c, early, colour, early);

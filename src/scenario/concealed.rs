@@ -186,11 +186,12 @@ pub fn truth(name: &str) -> HiddenTruth {
 
 /// The model's configuration: pegs' defaults on a slippery table, with softer, better damped
 /// visual forces (the default gain rings on a surface whose friction does not damp it: measured
-/// 12.7 mm mean tracking error on `concealed_drag` at 160 x 90 against 2.2 mm with these).
+/// 12.7 mm mean tracking error on `concealed_drag` at 160 x 90 against 2.2 mm with these; with the
+/// default gain the diagnosis named neither the drag nor the tilt).
 pub fn model_config() -> Config {
     let mut config = Config::default();
-    config.correct.gain = 0.5;
-    config.correct.damping = 0.04;
+    config.correct.gain = 500.0;
+    config.correct.damping = 40.0;
     config.physics.ground.static_friction = 0.04;
     config.physics.ground.kinetic_friction = 0.03;
     config
