@@ -668,6 +668,18 @@ mod tests {
     use crate::render::cpu::CpuRenderer;
     use crate::world::{WorldBuilder, box_lattice};
 
+    /// One correction of `world` against `image` seen by `camera`, at 30 Hz.
+    fn correct_once(
+        world: &mut World,
+        config: CorrectConfig,
+        camera: Camera,
+        image: &[Vec3],
+    ) -> CorrectStats {
+        let mut c = Corrector::new(config, RenderSettings::default()).unwrap();
+        c.correct(world, &[View { camera, image }], 1.0 / 30.0)
+            .unwrap()
+    }
+
     #[test]
     fn spreading_keeps_the_total_force_and_torque_and_loads_every_particle() {
         let mut b = WorldBuilder::new();
@@ -742,18 +754,7 @@ mod tests {
                 )
                 .colour;
             let (mut w, s) = plate(mass, 0.0);
-            let mut c =
-                Corrector::new(CorrectConfig::default(), RenderSettings::default()).unwrap();
-            let stats = c
-                .correct(
-                    &mut w,
-                    &[View {
-                        camera,
-                        image: &image,
-                    }],
-                    1.0 / 30.0,
-                )
-                .unwrap();
+            let stats = correct_once(&mut w, CorrectConfig::default(), camera, &image);
             stats.force[s as usize] / w.shapes.mass[s as usize]
         };
         let (light, heavy) = (acceleration(0.01), acceleration(0.05));
@@ -823,17 +824,7 @@ mod tests {
                 occluder_threshold: threshold,
                 ..Default::default()
             };
-            let mut c = Corrector::new(config, RenderSettings::default()).unwrap();
-            let stats = c
-                .correct(
-                    &mut w,
-                    &[View {
-                        camera,
-                        image: &image,
-                    }],
-                    1.0 / 30.0,
-                )
-                .unwrap();
+            let stats = correct_once(&mut w, config, camera, &image);
             (stats.force[0].length(), stats.occluded_pixels)
         };
         let (pushed, _) = force(0.0);

@@ -1,14 +1,19 @@
 //! Reading recordings as a stream: an `.mcap` or `.db3` file, or a rosbag2 directory (its
-//! `metadata.yaml` and storage files in the order it lists them), yielded message by message in
-//! storage order, so memory is bounded by one MCAP chunk or one SQLite batch whatever the bag's
-//! length. A damaged or truncated file ends the stream and is kept in `problem()`, never a panic.
+//! `metadata.yaml` and storage files in the order it lists them), yielded message by message:
+//! an MCAP file with a summary in log-time order (its chunks read as the order needs them: a bag
+//! whose writer logged one camera after another still replays them together), one without (a
+//! truncated file) and SQLite in storage order. Memory is bounded by the MCAP chunks that overlap
+//! in time or one SQLite batch, whatever the bag's length. A damaged or truncated file ends the
+//! stream and is kept in `problem()`, never a panic.
 
 use super::metadata;
 use super::sqlite::SqliteReader;
 use anyhow::{Context, Result};
-use std::collections::VecDeque;
+use mcap::sans_io::indexed_reader::{IndexedReadEvent, IndexedReader};
+use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
+use std::collections::{HashMap, VecDeque};
 use std::fs::File;
-use std::io::BufReader;
+use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 /// One recorded message: topic, schema name, log time (s) and CDR payload.
@@ -26,11 +31,46 @@ enum Storage {
         path: PathBuf,
         read: usize,
     },
+    /// An MCAP file with a summary, read through its chunk indexes in log-time order.
+    McapIndexed {
+        file: File,
+        reader: Box<IndexedReader>,
+        /// Topic and schema name per channel id.
+        channels: HashMap<u16, (String, String)>,
+        chunk: Vec<u8>,
+        path: PathBuf,
+        read: usize,
+    },
     Sqlite {
         reader: Box<SqliteReader>,
         path: PathBuf,
         read: usize,
     },
+}
+
+/// What an indexed MCAP reader asked for next.
+enum IndexedStep {
+    Message(RawMessage),
+    Chunk(u64, usize),
+    End,
+}
+
+/// The summary of an MCAP file (channels, schemas, chunk indexes), or `None` when it has none
+/// (a truncated file) or no chunk indexes.
+fn mcap_summary(file: &mut File) -> Option<mcap::Summary> {
+    let size = file.metadata().ok()?.len();
+    let options = SummaryReaderOptions::default().with_file_size(size);
+    let mut reader = SummaryReader::new_with_options(options);
+    while let Some(event) = reader.next_event() {
+        match event.ok()? {
+            SummaryReadEvent::ReadRequest(n) => {
+                let got = file.read(reader.insert(n)).ok()?;
+                reader.notify_read(got);
+            }
+            SummaryReadEvent::SeekRequest(to) => reader.notify_seeked(file.seek(to).ok()?),
+        }
+    }
+    reader.finish().filter(|s| !s.chunk_indexes.is_empty())
 }
 
 /// A recording's messages in storage order (see the module doc).
@@ -89,7 +129,31 @@ impl BagReader {
                 read: 0,
             }
         } else {
-            let file = File::open(&path)
+            let mut file = File::open(&path)
+                .with_context(|| format!("cannot read recording {}", path.display()))?;
+            let indexed = mcap_summary(&mut file).and_then(|summary| {
+                let channels = summary
+                    .channels
+                    .iter()
+                    .map(|(id, c)| {
+                        let schema = c.schema.as_ref().map(|s| s.name.clone());
+                        (*id, (c.topic.clone(), schema.unwrap_or_default()))
+                    })
+                    .collect();
+                Some((IndexedReader::new(&summary).ok()?, channels))
+            });
+            if let Some((reader, channels)) = indexed {
+                self.current = Some(Storage::McapIndexed {
+                    file,
+                    reader: Box::new(reader),
+                    channels,
+                    chunk: Vec::new(),
+                    path,
+                    read: 0,
+                });
+                return Ok(true);
+            }
+            file.seek(SeekFrom::Start(0))
                 .with_context(|| format!("cannot read recording {}", path.display()))?;
             Storage::Mcap {
                 reader: Box::new(mcap::io::MessageReader::new(BufReader::with_capacity(
@@ -150,6 +214,61 @@ impl Iterator for BagReader {
                     )),
                     None => Ok(None),
                 },
+                Some(Storage::McapIndexed {
+                    file,
+                    reader,
+                    channels,
+                    chunk,
+                    path,
+                    read,
+                }) => {
+                    let damaged = |e: &dyn std::fmt::Display, read: usize| {
+                        format!("{} is damaged after {read} messages: {e}", path.display())
+                    };
+                    let step = match reader.next_event() {
+                        None => Ok(IndexedStep::End),
+                        Some(Err(e)) => Err(damaged(&e, *read)),
+                        Some(Ok(IndexedReadEvent::ReadChunkRequest { offset, length })) => {
+                            Ok(IndexedStep::Chunk(offset, length))
+                        }
+                        Some(Ok(IndexedReadEvent::Message { header, data })) => {
+                            let (topic, schema) = channels
+                                .get(&header.channel_id)
+                                .cloned()
+                                .unwrap_or_default();
+                            Ok(IndexedStep::Message(RawMessage {
+                                topic,
+                                schema,
+                                time: header.log_time as f64 * 1e-9,
+                                data: data.to_vec(),
+                            }))
+                        }
+                    };
+                    match step {
+                        Ok(IndexedStep::Message(m)) => {
+                            *read += 1;
+                            Ok(Some(m))
+                        }
+                        Ok(IndexedStep::End) => Ok(None),
+                        Ok(IndexedStep::Chunk(offset, length)) => {
+                            chunk.resize(length, 0);
+                            let loaded = file
+                                .seek(SeekFrom::Start(offset))
+                                .and_then(|_| file.read_exact(chunk))
+                                .map_err(|e| damaged(&e, *read))
+                                .and_then(|_| {
+                                    reader
+                                        .insert_chunk_record_data(offset, chunk)
+                                        .map_err(|e| damaged(&e, *read))
+                                });
+                            match loaded {
+                                Ok(()) => continue,
+                                Err(e) => Err(e),
+                            }
+                        }
+                        Err(e) => Err(e),
+                    }
+                }
                 Some(Storage::Sqlite { reader, path, read }) => match reader.next() {
                     Some(Ok(m)) => {
                         *read += 1;
@@ -220,8 +339,27 @@ mod tests {
         assert!(none.is_empty() && problem.is_some());
     }
 
+    /// An MCAP file whose writer logged its messages out of time order (one stream after another,
+    /// as a merge or a per-camera importer does) is read in log-time order.
+    #[test]
+    fn an_mcap_file_is_read_in_log_time_order_whatever_the_order_it_was_written_in() {
+        let dir = std::env::temp_dir().join(format!("pegs-order-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("late_first.mcap");
+        joint_file(&path, (50..100).chain(0..50));
+        let (read, problem) = read_messages(&path).unwrap();
+        assert!(problem.is_none(), "{problem:?}");
+        let order: Vec<f64> = read
+            .iter()
+            .map(|m| msgs::from_cdr::<JointState>(&m.data).unwrap().position[0])
+            .collect();
+        assert_eq!(order, (0..100).map(|k| k as f64).collect::<Vec<_>>());
+        assert!(read.windows(2).all(|w| w[0].time <= w[1].time));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     /// Joint states k (position k, stamp k / 100 s) for k in `times`, into the MCAP file `path`.
-    fn joint_file(path: &Path, times: std::ops::Range<usize>) {
+    fn joint_file(path: &Path, times: impl Iterator<Item = usize>) {
         let mut w = RecordingWriter::create(path).unwrap();
         for k in times {
             let t = Time::from_seconds(k as f64 * 0.01);
