@@ -222,7 +222,7 @@ def main_run(recording, ros):
         return call(node, setter, SetParameters.Request(parameters=[p])).results[0]
 
     params["set_at"] = time.time()
-    params["set_gain"] = set_param("correct.gain", 0.8)
+    params["set_gain"] = set_param("correct.gain", 800.0)
     params["set_dt"] = set_param("physics.dt", 0.01)
     params["set_bad_gain"] = set_param("correct.gain", -1.0)
     params["gain_after"] = call(node, get, GetParameters.Request(names=["correct.gain"])).values[0].double_value
@@ -382,7 +382,7 @@ def test_parameters_are_listed_read_and_set(main_run):
     assert {"correct.gain", "physics.dt", "node.cameras", "scene.scenario"} <= set(p["names"])
     assert abs(p["gain_before"] - configured_gain(main_run["recording"])) < 1e-6
     assert p["set_gain"].successful, p["set_gain"].reason
-    assert abs(p["gain_after"] - 0.8) < 1e-9
+    assert abs(p["gain_after"] - 800.0) < 1e-9
     assert not p["set_dt"].successful and "fixed" in p["set_dt"].reason
     assert not p["set_bad_gain"].successful
     assert abs(p["dt_after"] - 1 / 30) < 1e-6
