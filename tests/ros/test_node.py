@@ -389,7 +389,7 @@ def test_parameters_are_listed_read_and_set(main_run):
     # The tick thread applies the new gain: diagnostics after the change report it.
     after = [m for t, m in main_run["recorder"].got["diagnostics"] if t > p["set_at"] + 0.2]
     gains = [float(kv.value) for m in after for st in m.status if st.name == "pegs: tracking" for kv in st.values if kv.key == "gain"]
-    assert gains and abs(gains[-1] - 0.8) < 1e-6, f"the tracker still corrects with {gains}"
+    assert gains and abs(gains[-1] - 800.0) < 1e-6, f"the tracker still corrects with {gains}"
 
 
 def test_node_runs_without_camera_info_for_one_camera(recording, ros):
