@@ -254,27 +254,35 @@ struct NodeArgs {
     pub ros_args: Vec<String>,
 }
 
+/// Every sweep option left out takes `pegs::evaluate::ablation::SweepOptions::default()`'s value.
 #[derive(Args)]
 struct AblateArgs {
     #[arg(long)]
     pub out: PathBuf,
-    #[arg(long, value_delimiter = ',', default_values_t = ["two_boxes".to_string(), "pushed_tblock".to_string()])]
-    pub scenarios: Vec<String>,
-    /// Resolution of every run outside the resolution ablation, WxH.
-    #[arg(long, default_value = "320x180", value_parser = parse_resolution)]
-    pub base: (u32, u32),
-    #[arg(long, default_value_t = 4.5)]
-    pub seconds: f64,
-    #[arg(long, value_delimiter = ',', value_parser = parse_resolution, default_values = ["1280x720", "640x360", "320x180", "160x90"])]
-    pub resolutions: Vec<(u32, u32)>,
-    #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 3])]
-    pub cameras: Vec<usize>,
-    #[arg(long, value_delimiter = ',', default_values_t = [500.0, 1000.0, 1500.0, 3000.0, 6000.0])]
-    pub gains: Vec<f32>,
-    #[arg(long, value_delimiter = ',', default_values_t = [0.0005, 0.0015, 0.005, 0.015])]
-    pub learning_rates: Vec<f32>,
-    #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 5, 10])]
-    pub iterations: Vec<u32>,
+    /// Scenarios (default: two_boxes, pushed_tblock).
+    #[arg(long, value_delimiter = ',')]
+    pub scenarios: Option<Vec<String>>,
+    /// Resolution of every run outside the resolution ablation, WxH (default: 320x180).
+    #[arg(long, value_parser = parse_resolution)]
+    pub base: Option<(u32, u32)>,
+    /// Seconds per run (default: 4.5).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// WxH,... (default: 1280x720 to 160x90).
+    #[arg(long, value_delimiter = ',', value_parser = parse_resolution)]
+    pub resolutions: Option<Vec<(u32, u32)>>,
+    /// Camera counts (default: 1, 2, 3).
+    #[arg(long, value_delimiter = ',')]
+    pub cameras: Option<Vec<usize>>,
+    /// Visual-force gains, 1/s^2 (default: 500 to 6000).
+    #[arg(long, value_delimiter = ',')]
+    pub gains: Option<Vec<f32>>,
+    /// Gaussian position learning rates (default: 0.0005 to 0.015).
+    #[arg(long, value_delimiter = ',')]
+    pub learning_rates: Option<Vec<f32>>,
+    /// Adam iterations per tick (default: 1, 2, 5, 10).
+    #[arg(long, value_delimiter = ',')]
+    pub iterations: Option<Vec<u32>>,
     /// Also write the summary table into this Markdown file between its ablation markers.
     #[arg(long)]
     pub readme: Option<PathBuf>,
@@ -749,15 +757,16 @@ fn ablate(a: AblateArgs) -> Result<()> {
         iterations,
         readme,
     } = a;
+    let d = pegs::evaluate::ablation::SweepOptions::default();
     let opts = pegs::evaluate::ablation::SweepOptions {
-        scenarios,
-        base,
-        seconds,
-        resolutions,
-        cameras,
-        gains,
-        learning_rates,
-        iterations,
+        scenarios: scenarios.unwrap_or(d.scenarios),
+        base: base.unwrap_or(d.base),
+        seconds: seconds.unwrap_or(d.seconds),
+        resolutions: resolutions.unwrap_or(d.resolutions),
+        cameras: cameras.unwrap_or(d.cameras),
+        gains: gains.unwrap_or(d.gains),
+        learning_rates: learning_rates.unwrap_or(d.learning_rates),
+        iterations: iterations.unwrap_or(d.iterations),
     };
     let rows = pegs::evaluate::ablation::run(&opts, &out)?;
     let table = pegs::evaluate::ablation::summary_table(&rows);

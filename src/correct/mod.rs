@@ -131,7 +131,6 @@ impl CorrectConfig {
             ("lr_opacity", self.lr_opacity),
             ("gain", self.gain),
             ("damping", self.damping),
-            ("rope_inertia", self.rope_inertia),
             ("min_displacement", self.min_displacement),
             ("max_image_age", self.max_image_age),
             ("roi_margin_px", self.roi_margin_px),
@@ -141,7 +140,7 @@ impl CorrectConfig {
                 bail!("correct.{name} must be finite and >= 0, got {v}");
             }
         }
-        if self.rope_inertia.is_nan() || self.rope_inertia <= 0.0 {
+        if !self.rope_inertia.is_finite() || self.rope_inertia <= 0.0 {
             bail!(
                 "correct.rope_inertia must be > 0, got {}",
                 self.rope_inertia
