@@ -472,13 +472,17 @@ impl Inputs {
             let age = feed.latest.as_ref().map(|(stamp, _)| t - stamp);
             out.ages.push((feed.name.clone(), age));
             match (&feed.latest, age) {
-                (Some((stamp, pixels)), Some(a)) if a <= max_age => out.images.push(TickImage {
-                    index,
-                    name: feed.name.clone(),
-                    stamp: *stamp,
-                    camera: feed.camera,
-                    pixels: pixels.clone(),
-                }),
+                // Stamped after the tick (it ran late, or the clock went back): usable within the
+                // same margin.
+                (Some((stamp, pixels)), Some(a)) if a.abs() <= max_age => {
+                    out.images.push(TickImage {
+                        index,
+                        name: feed.name.clone(),
+                        stamp: *stamp,
+                        camera: feed.camera,
+                        pixels: pixels.clone(),
+                    })
+                }
                 (Some(_), _) => out.stale.push(feed.name.clone()),
                 (None, _) => {}
             }

@@ -218,6 +218,12 @@ impl DiagnosticStatus {
     pub const STALE: u8 = 3;
 }
 
+/// `rosgraph_msgs/Clock`: simulated time on `/clock` (`ros2 bag play --clock`, simulators).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Clock {
+    pub clock: Time,
+}
+
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DiagnosticArray {
     pub header: Header,
@@ -237,7 +243,8 @@ ros_messages!(
     TrackedObjectArray,
     PointCloud2,
     CompressedImage,
-    DiagnosticArray
+    DiagnosticArray,
+    Clock
 );
 
 /// Encapsulation header of little-endian plain CDR, as ROS 2 writes it.

@@ -37,6 +37,10 @@ pub struct NodeConfig {
     pub debug_images_every: u32,
     /// Seconds between diagnostics messages.
     pub diagnostics_period: f32,
+    /// The node's clock is `/clock` (`ros2 bag play --clock`, a simulator) instead of the wall
+    /// clock: ticks wait for it, and images and outputs are judged and stamped on it. The ROS
+    /// parameter is `use_sim_time`, as for every node.
+    pub use_sim_time: bool,
 }
 
 impl Default for NodeConfig {
@@ -55,6 +59,7 @@ impl Default for NodeConfig {
             output_prefix: "/pegs".into(),
             debug_images_every: 10,
             diagnostics_period: 1.0,
+            use_sim_time: false,
         }
     }
 }

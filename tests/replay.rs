@@ -205,10 +205,13 @@ fn a_camera_that_stops_publishing_drops_out_and_is_reported() {
     let m = replay(&cut, &scn.join("config.yaml"), &out, &[]);
     let stale = m["stale_camera_ticks"]["cam1"].as_u64().unwrap();
     // cam1's last image is the one at 14/30 s (0.5 s itself is f32-rounded just past the cut), so
-    // it is more than 0.5 s old from about 0.97 s on: ticks 29..=45, give or take rounding.
+    // it is older than `correct.max_image_age` from 14/30 s + that age on, to the end (1.5 s).
+    let max_age = pegs::config::Config::default().correct.max_image_age as f64;
+    let expected = (1.5 - (14.0 / 30.0 + max_age)) * 30.0;
     assert!(
-        (15..=18).contains(&stale),
-        "cam1 should be stale from about 0.97 s on: {stale} ticks"
+        (stale as f64 - expected).abs() <= 2.0,
+        "cam1 should be stale from {:.2} s on ({expected:.0} ticks): {stale} ticks",
+        14.0 / 30.0 + max_age
     );
     assert!(m["stale_camera_ticks"].get("cam0").is_none());
     assert!(

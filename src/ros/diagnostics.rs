@@ -8,6 +8,11 @@ use super::subscribe::Shared;
 use crate::inputs::TickInputs;
 use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue};
 use crate::topics::NodeConfig;
+use std::collections::BTreeMap;
+
+/// A camera whose newest image is this much older than `correct.max_image_age` has stopped
+/// (ERROR); below it, its images only arrive too late to be used (WARN).
+pub const STOPPED_AFTER_S: f64 = 1.0;
 
 /// What the ticks since the last diagnostics measured.
 #[derive(Default)]
@@ -19,6 +24,28 @@ pub struct Window {
     pub no_views: usize,
     /// The visual-force gain the last tick corrected with.
     pub gain: f32,
+    /// `correct.max_image_age` at the last tick, s.
+    pub max_age: f64,
+    /// Per camera: the ages (s) of the images the ticks used, and the ticks whose newest image
+    /// was too old to use.
+    pub ages_used: BTreeMap<String, Vec<f64>>,
+    pub late: BTreeMap<String, usize>,
+}
+
+impl Window {
+    /// Count one tick's images: the age of each one used, and the cameras skipped as too old.
+    pub fn count_images(&mut self, tick: &TickInputs) {
+        for image in &tick.images {
+            let age = tick.time - image.stamp;
+            self.ages_used
+                .entry(image.name.clone())
+                .or_default()
+                .push(age);
+        }
+        for name in &tick.stale {
+            *self.late.entry(name.clone()).or_insert(0) += 1;
+        }
+    }
 }
 
 fn kv(key: &str, value: impl ToString) -> KeyValue {
@@ -55,7 +82,7 @@ pub fn diagnostics(
 ) -> Option<DiagnosticArray> {
     s.inputs.as_ref()?;
     let mut all = vec![tick_status(window, stats, dt)];
-    all.extend(camera_statuses(s, tick));
+    all.extend(camera_statuses(s, tick, window));
     all.push(inputs_status(s));
     all.extend(robot_status(s, stats.ticks as f64 * dt));
     all.push(tracking_status(tick, window));
@@ -87,6 +114,9 @@ pub fn waiting_diagnostics(
         if needs_images && !s.first_images.contains_key(camera) {
             missing.push(format!("{camera} first image"));
         }
+    }
+    if s.clock.now().is_none() {
+        missing.push("/clock (use_sim_time)".into());
     }
     let message = if missing.is_empty() {
         "starting".to_string()
@@ -130,7 +160,7 @@ fn tick_status(window: &Window, stats: &RunStats, dt: f64) -> DiagnosticStatus {
     status(level, "pegs: tick".into(), message, "pegs", values)
 }
 
-fn camera_statuses(s: &Shared, tick: &TickInputs) -> Vec<DiagnosticStatus> {
+fn camera_statuses(s: &Shared, tick: &TickInputs, window: &Window) -> Vec<DiagnosticStatus> {
     let Some(inputs) = &s.inputs else {
         return Vec::new();
     };
@@ -142,12 +172,27 @@ fn camera_statuses(s: &Shared, tick: &TickInputs) -> Vec<DiagnosticStatus> {
             .find(|(n, _)| *n == feed.name)
             .and_then(|(_, a)| *a);
         let stale = tick.stale.contains(&feed.name);
+        let used = window
+            .ages_used
+            .get(&feed.name)
+            .map_or(&[][..], Vec::as_slice);
+        let late = window.late.get(&feed.name).copied().unwrap_or(0);
         let (level, message) = match age {
             None => (DiagnosticStatus::ERROR, "no image received".to_string()),
-            Some(a) if stale => (
+            Some(a) if stale && a > window.max_age + STOPPED_AFTER_S => (
                 DiagnosticStatus::ERROR,
                 format!(
                     "stopped publishing: newest image is {a:.2} s old; tracking with the other cameras"
+                ),
+            ),
+            Some(a) if stale || late * 2 > window.ticks => (
+                DiagnosticStatus::WARN,
+                format!(
+                    "images too late: {late} of {} ticks had none newer than \
+                     correct.max_image_age ({:.0} ms; newest now {:.0} ms old); those ticks skip it",
+                    window.ticks,
+                    window.max_age * 1e3,
+                    a * 1e3
                 ),
             ),
             Some(_) if feed.rejected > 0 => (
@@ -156,8 +201,14 @@ fn camera_statuses(s: &Shared, tick: &TickInputs) -> Vec<DiagnosticStatus> {
             ),
             Some(_) => (DiagnosticStatus::OK, "ok".into()),
         };
+        let mean_used = used.iter().sum::<f64>() / used.len().max(1) as f64;
+        let max_used = used.iter().copied().fold(0.0, f64::max);
         let values = vec![
             kv("age_s", age.map_or("none".into(), |a| format!("{a:.3}"))),
+            kv("age_used_ms_mean", format!("{:.1}", mean_used * 1e3)),
+            kv("age_used_ms_max", format!("{:.1}", max_used * 1e3)),
+            kv("ticks_used", used.len()),
+            kv("ticks_too_late", late),
             kv("accepted", feed.accepted),
             kv("rejected", feed.rejected),
         ];

@@ -4,12 +4,14 @@
 //!
 //! - `params`: the configuration as ROS parameters and `--ros-args` overrides.
 //! - `node`: the node itself: parameters, the three kinds of threads, run statistics.
+//! - `clock`: the node's clock (wall, or `/clock` with `use_sim_time`).
 //! - `subscribe`: topics in, checked and handed to the shared state.
 //! - `tick`: the tick thread: starts the tracker once cameras are known, then drives it.
 //! - `diagnostics`: `/diagnostics` from the last window of ticks.
 //! - `publish`: the publishing thread.
 //! - `outputs`: messages built from the tracked world (pure functions).
 
+mod clock;
 mod diagnostics;
 pub mod node;
 pub mod outputs;
@@ -18,14 +20,7 @@ mod publish;
 mod subscribe;
 mod tick;
 
-use std::time::{SystemTime, UNIX_EPOCH};
-
-/// Seconds since the Unix epoch: the node's clock (ROS time without simulated time).
-pub fn now() -> f64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
+pub use clock::RosClock;
 
 /// Where `log` also sends its lines while a node runs: the node forwards them to `/rosout`.
 static ROSOUT: std::sync::Mutex<Option<tokio::sync::mpsc::UnboundedSender<String>>> =
@@ -33,7 +28,7 @@ static ROSOUT: std::sync::Mutex<Option<tokio::sync::mpsc::UnboundedSender<String
 
 /// A line for the operator: on stderr, and on `/rosout` while the node runs.
 fn log(line: &str) {
-    eprintln!("[pegs {:.3}] {line}", now());
+    eprintln!("[pegs {:.3}] {line}", RosClock::wall());
     if let Ok(rosout) = ROSOUT.lock()
         && let Some(tx) = rosout.as_ref()
     {

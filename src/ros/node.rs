@@ -152,15 +152,23 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
         *rosout = Some(rosout_tx);
     }
     let nc = config.node.clone();
-    let shared = Arc::new(Mutex::new(Shared::default()));
+    let clock = super::RosClock::new(nc.use_sim_time);
+    let shared = Arc::new(Mutex::new(Shared {
+        clock: clock.clone(),
+        ..Default::default()
+    }));
     let publishers = create_publishers(&mut node, &nc, &launch.remaps)?;
     let remaps = &launch.remaps;
     subscribe(&context, &node_name, &mut node, &nc, shared.clone(), remaps)?;
     log(&format!(
-        "node {} up: cameras {:?}, rate {:.1} Hz",
+        "node {} up: cameras {:?}, rate {:.1} Hz, {}",
         node.fully_qualified_name(),
         nc.cameras,
-        1.0 / config.physics.dt
+        1.0 / config.physics.dt,
+        match nc.use_sim_time {
+            true => "simulated time from /clock",
+            false => "wall clock",
+        }
     ));
     let stop = Arc::new(AtomicBool::new(false));
     let (tx, rx) = sync_channel::<Output>(1);
@@ -170,7 +178,7 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
         let render = config.render.clone();
         std::thread::Builder::new()
             .name("pegs-publish".into())
-            .spawn(move || publish_loop(rx, publishers, render, latencies))?
+            .spawn(move || publish_loop(rx, publishers, render, latencies, clock))?
     };
     // The tick thread says when it ends, so an error in it (initialisation included) stops the
     // node at once, exiting non-zero with the reason, instead of waiting for a signal.

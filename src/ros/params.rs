@@ -18,11 +18,24 @@ pub fn is_live(name: &str) -> bool {
     (name.starts_with("correct.") && name != "correct.backend") || name == "node.debug_images_every"
 }
 
+/// The configuration's `node.use_sim_time` is the parameter every ROS node has: `use_sim_time`.
+const SIM_TIME: (&str, &str) = ("use_sim_time", "node.use_sim_time");
+
+/// The configuration path of parameter `name`.
+fn path_of(name: &str) -> &str {
+    if name == SIM_TIME.0 { SIM_TIME.1 } else { name }
+}
+
 /// `config` as (name, value) parameters. Empty lists, nulls and lists of mappings (object and
 /// effect lists) have no parameter type and are left out; they are set in the parameter file.
 pub fn flatten(config: &Config) -> Result<Vec<(String, ParameterValue)>> {
     let mut out = Vec::new();
     walk(&serde_json::to_value(config)?, String::new(), &mut out);
+    for (name, _) in &mut out {
+        if name == SIM_TIME.1 {
+            *name = SIM_TIME.0.to_string();
+        }
+    }
     Ok(out)
 }
 
@@ -92,7 +105,7 @@ pub fn from_parameter(p: &ParameterValue) -> Option<Value> {
 pub fn with_parameter(config: &Config, name: &str, value: Value) -> Result<Config> {
     let mut tree = serde_json::to_value(config)?;
     let mut at = &mut tree;
-    for key in name.split('.') {
+    for key in path_of(name).split('.') {
         at = at
             .as_object_mut()
             .and_then(|m| m.get_mut(key))
@@ -191,7 +204,7 @@ pub fn parse_ros_args(args: &[String]) -> Result<LaunchArgs> {
 /// whose key matches the node's fully qualified name as rcl matches them (`/ns/name`, `name`, `/**`,
 /// `/**/name`, `*` for one token); keys a wildcard section sets that pegs does not have (another
 /// node's parameters) are ignored with a log line, while an unknown key in the node's own section is
-/// an error. `use_sim_time: false` is accepted; `true` is refused (the node runs on the wall clock).
+/// an error. `use_sim_time` sets `node.use_sim_time`.
 pub fn launch_config(base: Config, args: &LaunchArgs) -> Result<Config> {
     let node = fully_qualified_name(args);
     let mut config = base;
@@ -205,16 +218,6 @@ pub fn launch_config(base: Config, args: &LaunchArgs) -> Result<Config> {
             let mut leaves = Vec::new();
             leaves_of(&serde_json::to_value(params)?, String::new(), &mut leaves);
             for (name, value) in leaves {
-                if name == "use_sim_time" {
-                    if value == Value::Bool(true) {
-                        bail!(
-                            "{}: use_sim_time true is not supported: pegs node ticks on the wall \
-                             clock",
-                            file.display()
-                        );
-                    }
-                    continue;
-                }
                 if wildcard && !is_parameter(&config, &name) {
                     super::log(&format!(
                         "{}: '{name}' under '{key}' is not a pegs parameter; ignored",
@@ -300,7 +303,7 @@ fn is_parameter(config: &Config, name: &str) -> bool {
         return false;
     };
     let mut at = &tree;
-    for key in name.split('.') {
+    for key in path_of(name).split('.') {
         match at.as_object().and_then(|m| m.get(key)) {
             Some(next) => at = next,
             None => return false,
@@ -438,7 +441,7 @@ mod tests {
     /// A multi-node parameter file as ROS users write them: `/**` for every node (with keys other
     /// nodes use), the node by name, another node's section. The node takes `/**` and its own
     /// section in file order, ignores the others and the foreign `/**` keys, and refuses an unknown
-    /// key in its own section and `use_sim_time: true`.
+    /// key in its own section; `use_sim_time` is the node's clock setting.
     #[test]
     fn parameter_files_apply_the_sections_that_name_the_node() {
         let remaps = parse_ros_args(&["-r".into(), "/joint_states:=/fr3/joint_states".into()])
@@ -483,10 +486,15 @@ mod tests {
         );
         assert!(e.contains("no parameter 'gain'"), "{e}");
         std::fs::write(&file, "/**:\n  ros__parameters:\n    use_sim_time: true\n").unwrap();
-        let e = format!(
-            "{:#}",
-            launch_config(Config::default(), &args(&[])).unwrap_err()
+        let c = launch_config(Config::default(), &args(&[])).unwrap();
+        assert!(c.node.use_sim_time, "use_sim_time is node.use_sim_time");
+        let c = launch_config(Config::default(), &args(&["-p", "use_sim_time:=true"])).unwrap();
+        assert!(c.node.use_sim_time);
+        let names: Vec<String> = flatten(&c).unwrap().into_iter().map(|(n, _)| n).collect();
+        assert!(names.contains(&"use_sim_time".to_string()));
+        assert!(
+            !names.iter().any(|n| n == "node.use_sim_time"),
+            "declared once, by its ROS name"
         );
-        assert!(e.contains("use_sim_time"), "{e}");
     }
 }

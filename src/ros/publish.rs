@@ -5,7 +5,7 @@
 
 use super::params::Remaps;
 use super::subscribe::{sensor_qos, state_qos, topic_name};
-use super::{log, now, outputs};
+use super::{RosClock, log, outputs};
 use crate::msgs::{
     CompressedImage, DiagnosticArray, Header, Image, PointCloud2, PoseArray, TfMessage,
     TrackedObjectArray,
@@ -129,6 +129,7 @@ pub fn publish_loop(
     publishers: Publishers,
     render: crate::render::RenderSettings,
     latencies: Arc<Mutex<Vec<f64>>>,
+    clock: RosClock,
 ) {
     let mut renderer = crate::render::cpu::CpuRenderer::new(render);
     let mut failures = 0usize;
@@ -154,10 +155,11 @@ pub fn publish_loop(
             fail("objects", format!("{e:?}"));
         }
         if let Some(stamp) = out.newest_image
+            && let Some(now) = clock.now()
             && let Ok(mut l) = latencies.lock()
             && l.len() < 1_000_000
         {
-            l.push(now() - stamp);
+            l.push(now - stamp);
         }
         if let Err(e) = publishers.poses.publish(poses) {
             fail("poses", format!("{e:?}"));

@@ -5,10 +5,10 @@
 //! a task.
 
 use super::params::Remaps;
-use super::{log, now};
+use super::{RosClock, log};
 use crate::inputs::Inputs;
 use crate::math::Pose;
-use crate::msgs::{CameraInfo, Image, JointState, TfMessage};
+use crate::msgs::{CameraInfo, Clock, Image, JointState, TfMessage};
 use crate::record::TfTree;
 use crate::topics::NodeConfig;
 use anyhow::{Result, anyhow};
@@ -38,6 +38,8 @@ pub struct Shared {
     pub bad_camera_info: BTreeMap<String, String>,
     /// Configured cameras left out at start, with the reason.
     pub unused_cameras: BTreeMap<String, String>,
+    /// The node's clock (set by `/clock` with `use_sim_time`).
+    pub clock: RosClock,
 }
 
 pub fn topic_name(full: &str) -> Result<Name> {
@@ -67,7 +69,8 @@ impl Shared {
         match &mut self.inputs {
             Some(inputs) => {
                 if let Some(k) = inputs.camera_index(camera) {
-                    let _ = inputs.offer_image(k, &img, now());
+                    let now = self.clock.now().unwrap_or(f64::NAN);
+                    let _ = inputs.offer_image(k, &img, now);
                 }
             }
             None => {
@@ -123,7 +126,8 @@ impl Shared {
     fn on_joint_state(&mut self, js: JointState) {
         match &mut self.inputs {
             Some(inputs) => {
-                let _ = inputs.offer_joint_state(&js, now());
+                let now = self.clock.now().unwrap_or(f64::NAN);
+                let _ = inputs.offer_joint_state(&js, now);
             }
             None => self.last_joint_state = Some(js),
         }
@@ -264,8 +268,8 @@ impl Subscriber<'_> {
 
 const IMAGE: (&str, &str) = ("sensor_msgs", "Image");
 
-/// One task per subscription: every camera's image, CameraInfo, depth and mask, the joint states
-/// and /tf_static.
+/// One task per subscription: every camera's image, CameraInfo, depth and mask, the joint states,
+/// /tf_static, and /clock with `use_sim_time`.
 pub fn subscribe(
     context: &Context,
     node_name: &NodeName,
@@ -330,6 +334,13 @@ pub fn subscribe(
         state_qos(100),
         Shared::on_joint_state,
     )?;
+    if nc.use_sim_time {
+        // As rclcpp's clock subscription: best effort, the newest message only.
+        let qos = sensor_qos().history(History::KeepLast { depth: 1 });
+        s.subscribe("/clock", ("rosgraph_msgs", "Clock"), qos, |s, c: Clock| {
+            s.clock.set(c.clock.seconds())
+        })?;
+    }
     let frames = nc.clone();
     s.subscribe(
         "/tf_static",

@@ -1,14 +1,15 @@
 //! The tick thread. It waits until the configured cameras are known (CameraInfo and pose) and,
 //! for a scene initialised from cameras, have sent a first image; builds the world as replay does
 //! (a scenario, or `init` from the first frames); then drives `Tracker::tick` at the physics rate
-//! on the node's clock, on whatever is newest, skipping ticks whose deadline passed instead of
-//! queueing them. What each tick produced goes to the publishing thread (`Outputs`).
+//! on the node's clock (wall or `/clock`), on whatever is newest, skipping ticks whose deadline
+//! passed instead of queueing them; a clock that goes back (a bag played again) restarts the
+//! world's clock there. What each tick produced goes to the publishing thread (`Outputs`).
 
 use super::diagnostics::{Window, diagnostics, waiting_diagnostics};
 use super::node::RunStats;
 use super::publish::{Output, TickOutput};
 use super::subscribe::Shared;
-use super::{log, now, outputs, rss_mb};
+use super::{RosClock, log, outputs, rss_mb};
 use crate::config::Config;
 use crate::init::FirstFrames;
 use crate::inputs::{TickInputs, decode_depth, decode_image, decode_labels};
@@ -41,22 +42,43 @@ pub fn tick_loop(
         });
     };
     let dt = config.physics.dt as f64;
+    let clock = shared
+        .lock()
+        .map_err(|_| anyhow!("state lock poisoned"))?
+        .clock
+        .clone();
+    // Simulated time may run at any rate: look at it often rather than sleep until a deadline.
+    let poll = if clock.is_simulated() { 0.002 } else { 0.1 };
     let mut outputs = Outputs::new(&config, shared.clone(), tx);
     outputs.stats.rss_mb_start = rss_mb_start;
     let mut applied = config;
     // The world's clock is the node's clock: tick k ends at start + k dt, whatever happened before.
     let mut next = tracker.time() + dt;
-    let started = now();
+    let started = RosClock::wall();
     let mut index = 0;
     while !stop.load(Ordering::SeqCst) {
-        let wait = next - now();
+        let Some(now) = clock.now() else {
+            std::thread::sleep(Duration::from_secs_f64(poll));
+            continue;
+        };
+        if now < next - dt - CLOCK_BACK_S {
+            log(&format!(
+                "the clock went back from {:.3} s to {now:.3} s (a recording played again?): the \
+                 world's clock restarts there",
+                next - dt
+            ));
+            tracker.restart_clock(now);
+            next = now + dt;
+            continue;
+        }
+        let wait = next - now;
         if wait > 0.0 {
-            std::thread::sleep(Duration::from_secs_f64(wait.min(0.1)));
+            std::thread::sleep(Duration::from_secs_f64(wait.min(poll)));
             continue;
         }
         // A tick whose deadline passed more than a period ago is not run late: it is skipped, and
         // the world is predicted across it without correction (its images are gone).
-        while now() - next > dt {
+        while now - next > dt {
             next += dt;
             outputs.stats.skipped_ticks += 1;
         }
@@ -74,6 +96,7 @@ pub fn tick_loop(
         let report = tracker.tick(&inputs)?;
         index += 1;
         outputs.gain = applied.correct.gain;
+        outputs.max_age = applied.correct.max_image_age as f64;
         outputs.tick(&Tick {
             index,
             tracker: &tracker,
@@ -82,8 +105,11 @@ pub fn tick_loop(
         })?;
         next += dt;
     }
-    Ok(outputs.finish(now() - started))
+    Ok(outputs.finish(RosClock::wall() - started))
 }
+
+/// A clock this far behind the world's (s) went back: the world's clock restarts from it.
+pub const CLOCK_BACK_S: f64 = 1.0;
 
 /// What the tick ending at `t` consumes, and the input explanations logged.
 fn take_inputs(shared: &Mutex<Shared>, t: f64, max_age: f64) -> Result<TickInputs> {
@@ -124,15 +150,15 @@ fn start_tracker(
     tx: &SyncSender<Output>,
 ) -> Result<Option<Tracker>> {
     let nc = &config.node;
-    let started = now();
+    let started = RosClock::wall();
     let mut told = false;
     let mut said_at = f64::NEG_INFINITY;
     loop {
-        if now() - said_at >= nc.diagnostics_period as f64 {
-            said_at = now();
+        if RosClock::wall() - said_at >= nc.diagnostics_period as f64 {
+            said_at = RosClock::wall();
             let s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
             let header = Header {
-                stamp: Time::from_seconds(said_at),
+                stamp: Time::from_seconds(s.clock.now().unwrap_or(0.0)),
                 frame_id: String::new(),
             };
             let needs_images = config.scene.scenario.is_none();
@@ -143,24 +169,30 @@ fn start_tracker(
         if stop.load(Ordering::SeqCst) {
             return Ok(None);
         }
-        let (cameras, needs_images) = {
+        let (cameras, needs_images, clock_runs) = {
             let s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
             let cameras = ready_cameras(&s, nc);
             let needs_images = config.scene.scenario.is_none()
                 && cameras.iter().any(|(c, _)| !s.first_images.contains_key(c));
-            (cameras, needs_images)
+            (cameras, needs_images, s.clock.now().is_some())
         };
-        let waited = now() - started;
+        let waited = RosClock::wall() - started;
         let all = cameras.len() == nc.cameras.len();
-        if !cameras.is_empty() && !needs_images && (all || waited > nc.camera_wait as f64) {
+        let ready = !cameras.is_empty() && !needs_images && clock_runs;
+        if ready && (all || waited > nc.camera_wait as f64) {
             let mut s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
             report_unused_cameras(&mut s, nc, &cameras, waited);
             return start(config, cameras, &mut s).map(Some);
         }
         if !told && waited > 1.0 {
             log(&format!(
-                "waiting for CameraInfo and /tf_static of {:?}",
-                nc.cameras
+                "waiting for CameraInfo and /tf_static of {:?}{}",
+                nc.cameras,
+                if clock_runs {
+                    ""
+                } else {
+                    ", and /clock (use_sim_time)"
+                }
             ));
             told = true;
         }
@@ -214,7 +246,7 @@ fn report_unused_cameras(s: &mut Shared, nc: &NodeConfig, ready: &[(String, Came
 /// that arrived before it started).
 fn start(config: &Config, cameras: Vec<(String, Camera)>, s: &mut Shared) -> Result<Tracker> {
     let mut scene = build_scene(config, &cameras, s)?;
-    let t = now();
+    let t = s.clock.now().context("no time yet")?;
     scene.world.time = t;
     let tracker = Tracker::new(scene, config, true)?;
     let mut inputs = tracker.inputs(cameras);
@@ -314,8 +346,9 @@ struct Outputs {
     debug_every: usize,
     /// When the current tick started (for its duration).
     clock: Instant,
-    /// The gain the tick corrected with (for diagnostics).
+    /// The gain and image age limit the tick corrected with (for diagnostics).
     gain: f32,
+    max_age: f64,
     window: Window,
     last_diagnostics: f64,
     tick_ms: Vec<f64>,
@@ -334,8 +367,9 @@ impl Outputs {
             debug_every: config.node.debug_images_every as usize,
             clock: Instant::now(),
             gain: config.correct.gain,
+            max_age: config.correct.max_image_age as f64,
             window: Window::default(),
-            last_diagnostics: now(),
+            last_diagnostics: RosClock::wall(),
             tick_ms: Vec::new(),
             stats: RunStats::default(),
         }
@@ -391,6 +425,8 @@ impl Outputs {
         w.tick_ms.push(tick_ms);
         w.no_views += tick.inputs.images.is_empty() as usize;
         w.gain = self.gain;
+        w.max_age = self.max_age;
+        w.count_images(tick.inputs);
         if let Some(c) = &tick.report.correction {
             w.loss += c.loss_before as f64;
             w.force += c.force.iter().map(|f| f.length() as f64).sum::<f64>();
@@ -404,10 +440,10 @@ impl Outputs {
         header: &Header,
         tick: &Tick,
     ) -> Option<crate::msgs::DiagnosticArray> {
-        if now() - self.last_diagnostics < self.diagnostics_period {
+        if RosClock::wall() - self.last_diagnostics < self.diagnostics_period {
             return None;
         }
-        self.last_diagnostics = now();
+        self.last_diagnostics = RosClock::wall();
         let s = self.shared.lock().ok()?;
         let d = diagnostics(header, &s, tick.inputs, &self.window, &self.stats, self.dt);
         self.window = Window::default();

@@ -169,6 +169,12 @@ impl Tracker {
         self.corrector.as_ref().is_some_and(|c| c.config.enabled)
     }
 
+    /// Restart the world's clock at `t` (the node's clock went back: a recording played again).
+    /// The world stays where it is; the next tick ends at `t` + dt.
+    pub fn restart_clock(&mut self, t: f64) {
+        self.scene.world.time = t;
+    }
+
     /// New correction settings from the next tick on (a live parameter change).
     pub fn set_correct(&mut self, config: CorrectConfig) {
         if let Some(corrector) = &mut self.corrector {

@@ -671,3 +671,77 @@ def test_topic_remaps_rename_what_the_node_publishes_and_reads(recording, ros):
     assert recorder.count("poses") == 0, "nothing on the original name"
     status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
     assert level(status["pegs: camera cam2"]) == 2, status["pegs: camera cam2"].message
+
+
+def test_simulated_time_from_clock_drives_the_ticks(recording, ros):
+    """With use_sim_time the node's clock is /clock, as `ros2 bag play --clock` publishes it: it
+    waits for /clock (and says so), ticks at 30 Hz of simulated time (here running at half speed,
+    far from the wall clock, with a one-second pause), judges and stamps on it, and when the clock
+    goes back (a bag played again) it restarts its world's clock there."""
+    from rosgraph_msgs.msg import Clock
+    node = rclpy.create_node("pegs_test_sim_time")
+    recorder = Recorder(node)
+    clock_pub = node.create_publisher(Clock, "/clock", 10)
+    proc, stats_path = start_node(recording, "sim_time", ("-p", "use_sim_time:=true"))
+    player = Player(node, str(recording / "recording"))
+    wait_for_discovery(node, player)
+    spin_for(node, 1.5)
+    waiting = [m for _, m in recorder.got.get("diagnostics", [])]
+    sim0, rate, played = 1000.0, 0.5, 3.0  # simulated start, its speed, seconds of recording
+    wall0 = time.time() + 0.3
+    pause_at, pause_s = 1.5, 1.0  # simulated seconds after sim0; wall seconds
+
+    def sim(now):
+        if now < wall0:
+            return sim0
+        s = rate * (now - wall0)
+        if s > pause_at:
+            s = max(pause_at, s - rate * pause_s)
+        return sim0 + s
+
+    def tick_clock(now):
+        t = sim(now)
+        clock_pub.publish(set_stamp_clock(Clock(), t))
+        player.publish_due(t)
+
+    player.begin(sim0 + 0.2)
+    end_wall = wall0 + played / rate + pause_s
+    spin_for(node, end_wall - time.time(), None, tick_clock)
+    played_until = sim(time.time())
+    received = list(recorder.got.get("objects", []))
+    # The clock goes back 2 s (a bag replayed) and runs on at full speed for 1.5 s.
+    back = played_until - 2.0
+    wall_back = time.time()
+    spin_for(node, 1.5, None, lambda now: (clock_pub.publish(set_stamp_clock(Clock(), back + now - wall_back))))
+    stop_node(proc, stats_path)
+    node.destroy_node()
+    log = (recording / "sim_time.log").read_text()
+
+    assert waiting and any("/clock (use_sim_time)" in s.message for m in waiting for s in m.status), "start-up diagnostics name /clock"
+    stamps = sorted(stamp_of(m) for _, m in received)
+    assert stamps and sim0 <= stamps[0] and stamps[-1] <= played_until + 0.05, f"stamps {stamps[:2]}..{stamps[-2:]} are not simulated time"
+    dt = 1.0 / 30.0
+    span = stamps[-1] - stamps[0]
+    assert len(stamps) >= 0.8 * span / dt and len(stamps) <= span / dt + 2, f"{len(stamps)} ticks over {span:.2f} simulated s"
+    # While the clock stood still (wall seconds 3.0 .. 4.0 after wall0) no tick ran past it.
+    paused = [stamp_of(m) for w, m in received if wall0 + pause_at / rate + 0.2 <= w <= wall0 + pause_at / rate + pause_s]
+    assert all(s <= sim0 + pause_at + 2 * dt for s in paused), f"ticks while /clock stood still: {paused}"
+    # Tracking on simulated stamps: the box follows the ground truth.
+    track = ground_truth(recording)
+    errors = []
+    for _, msg in received:
+        t = player.recording_time(stamp_of(msg))
+        if 1.0 <= t <= played:
+            (box,) = [o for o in msg.objects if o.name == "box"]
+            _, x, y, z = truth_at(track, t)
+            errors.append(math.dist((box.pose.position.x, box.pose.position.y, box.pose.position.z), (x, y, z)))
+    assert len(errors) >= 10 and sum(errors) / len(errors) < 0.015, f"{len(errors)} ticks, mean {1e3 * sum(errors) / max(len(errors), 1):.1f} mm"
+    assert "the clock went back" in log, log
+    after = [stamp_of(m) for w, m in recorder.got["objects"] if w > wall_back + 0.3]
+    assert after and all(back - 0.1 <= s <= back + 1.6 for s in after), f"after the jump: {after[:3]}..{after[-3:]}"
+
+
+def set_stamp_clock(msg, t: float):
+    msg.clock.sec = int(t)
+    msg.clock.nanosec = int(round((t - int(t)) * 1e9)) % 1_000_000_000
+    return msg
