@@ -218,6 +218,12 @@ impl DiagnosticStatus {
     pub const STALE: u8 = 3;
 }
 
+/// `std_msgs/String`: here the URDF on `/robot_description`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StringMsg {
+    pub data: String,
+}
+
 /// `rosgraph_msgs/Clock`: simulated time on `/clock` (`ros2 bag play --clock`, simulators).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Clock {
@@ -244,7 +250,8 @@ ros_messages!(
     PointCloud2,
     CompressedImage,
     DiagnosticArray,
-    Clock
+    Clock,
+    StringMsg
 );
 
 /// Encapsulation header of little-endian plain CDR, as ROS 2 writes it.

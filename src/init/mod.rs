@@ -25,6 +25,7 @@ use anyhow::{Context, Result, bail};
 use glam::{Quat, Vec3};
 use serde::Serialize;
 use std::collections::BTreeMap;
+use std::path::Path;
 
 /// Colour distance of the occluder test used while fitting silhouettes (see `correct::explained`).
 const OCCLUDER_THRESHOLD: f32 = 0.35;
@@ -212,12 +213,14 @@ fn add_robot(
     config: &RobotConfig,
     initial_joints: &[(String, f64)],
 ) -> Result<Option<(RobotInWorld, JointTrajectory)>> {
-    let Some(path) = &config.urdf else {
-        return Ok(None);
-    };
     let ament = std::env::var("AMENT_PREFIX_PATH").ok();
     let packages = PackagePaths::with_ament(&config.package_paths, ament.as_deref());
-    let model = RobotModel::load(path, &packages, config.geometry)?;
+    let model = match (&config.description, &config.urdf) {
+        (Some(text), _) => RobotModel::parse(text, Path::new("."), &packages, config.geometry)
+            .with_context(|| format!("in the URDF received on {}", config.description_topic))?,
+        (None, Some(path)) => RobotModel::load(path, &packages, config.geometry)?,
+        (None, None) => return Ok(None),
+    };
     let mut q = vec![0.0; model.joints.len()];
     for (name, v) in initial_joints {
         if let Some(j) = model.joint_index(name)

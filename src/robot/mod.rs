@@ -9,7 +9,7 @@ pub mod model;
 pub mod sampling;
 
 pub use joint_state::{JointStateTracker, JointTrajectory, UpdateReport};
-pub use model::{GeometrySource, PackagePaths, RobotModel};
+pub use model::{GeometrySource, PackagePaths, RobotModel, root_link_name};
 pub use sampling::Sampling;
 
 use crate::math::Pose;
@@ -46,6 +46,17 @@ pub struct RobotConfig {
     /// match the URDF. Both empty: names are used as they come.
     pub joint_prefix_received: String,
     pub joint_prefix_urdf: String,
+    /// Topic of the URDF text (`std_msgs/String`, transient local, as robot_state_publisher
+    /// publishes `/robot_description`): `pegs node` waits for it and builds the robot from it
+    /// instead of `urdf`. Empty: `urdf`.
+    pub description_topic: String,
+    /// The URDF text received on `description_topic` (run-time data, never in a file).
+    #[serde(skip)]
+    pub description: Option<String>,
+    /// The tf frame of the URDF's root link: where `pegs node` finds the tf tree reaching it from
+    /// the world frame (on `/tf_static`), the robot stands there instead of at `base_position` /
+    /// `base_orientation`. Empty: the root link's name.
+    pub base_frame: String,
 }
 
 impl Default for RobotConfig {
@@ -63,6 +74,9 @@ impl Default for RobotConfig {
             default_colour: Vec3::splat(0.9),
             joint_prefix_received: String::new(),
             joint_prefix_urdf: String::new(),
+            description_topic: String::new(),
+            description: None,
+            base_frame: String::new(),
         }
     }
 }

@@ -264,6 +264,23 @@ fn material_colour(m: &urdf_rs::Material, named: &HashMap<String, Vec3>) -> Opti
     }
 }
 
+/// The name of the link no joint of the URDF `text` moves (its base frame).
+pub fn root_link_name(text: &str) -> Result<String> {
+    let urdf = urdf_rs::read_from_string(text).map_err(|e| anyhow!("malformed URDF: {e}"))?;
+    let moved: std::collections::HashSet<&str> =
+        urdf.joints.iter().map(|j| j.child.link.as_str()).collect();
+    let roots: Vec<&str> = urdf
+        .links
+        .iter()
+        .map(|l| l.name.as_str())
+        .filter(|l| !moved.contains(l))
+        .collect();
+    match roots[..] {
+        [root] => Ok(root.to_string()),
+        _ => bail!("a robot needs exactly one root link, found {roots:?}"),
+    }
+}
+
 impl RobotModel {
     /// Load a URDF file; meshes resolve relative to its directory or through `packages`.
     pub fn load(path: &Path, packages: &PackagePaths, source: GeometrySource) -> Result<Self> {

@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 
 /// A camera whose newest image is this much older than `correct.max_image_age` has stopped
 /// (ERROR); below it, its images only arrive too late to be used (WARN).
-pub const STOPPED_AFTER_S: f64 = 1.0;
+pub const STOPPED_AFTER_S: f64 = 0.5;
 
 /// What the ticks since the last diagnostics measured.
 #[derive(Default)]
@@ -99,6 +99,7 @@ pub fn waiting_diagnostics(
     s: &Shared,
     nc: &NodeConfig,
     needs_images: bool,
+    description_topic: Option<&str>,
     waited: f64,
 ) -> DiagnosticArray {
     let mut missing = Vec::new();
@@ -114,6 +115,9 @@ pub fn waiting_diagnostics(
         if needs_images && !s.first_images.contains_key(camera) {
             missing.push(format!("{camera} first image"));
         }
+    }
+    if let Some(topic) = description_topic {
+        missing.push(format!("robot_description on {topic}"));
     }
     if s.clock.now().is_none() {
         missing.push("/clock (use_sim_time)".into());

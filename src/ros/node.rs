@@ -159,7 +159,16 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
     }));
     let publishers = create_publishers(&mut node, &nc, &launch.remaps)?;
     let remaps = &launch.remaps;
-    subscribe(&context, &node_name, &mut node, &nc, shared.clone(), remaps)?;
+    let robot = &config.robot;
+    subscribe(
+        &context,
+        &node_name,
+        &mut node,
+        &nc,
+        robot,
+        shared.clone(),
+        remaps,
+    )?;
     log(&format!(
         "node {} up: cameras {:?}, rate {:.1} Hz, {}",
         node.fully_qualified_name(),

@@ -8,7 +8,7 @@ use super::params::Remaps;
 use super::{RosClock, log};
 use crate::inputs::Inputs;
 use crate::math::Pose;
-use crate::msgs::{CameraInfo, Clock, Image, JointState, TfMessage};
+use crate::msgs::{CameraInfo, Clock, Image, JointState, StringMsg, TfMessage};
 use crate::record::TfTree;
 use crate::topics::NodeConfig;
 use anyhow::{Result, anyhow};
@@ -40,6 +40,8 @@ pub struct Shared {
     pub unused_cameras: BTreeMap<String, String>,
     /// The node's clock (set by `/clock` with `use_sim_time`).
     pub clock: RosClock,
+    /// The URDF received on `robot.description_topic` (the newest).
+    pub robot_description: Option<String>,
 }
 
 pub fn topic_name(full: &str) -> Result<Name> {
@@ -269,12 +271,14 @@ impl Subscriber<'_> {
 const IMAGE: (&str, &str) = ("sensor_msgs", "Image");
 
 /// One task per subscription: every camera's image, CameraInfo, depth and mask, the joint states,
-/// /tf_static, and /clock with `use_sim_time`.
+/// /tf_static, /clock with `use_sim_time`, and the URDF on `robot.description_topic` until
+/// tracking starts.
 pub fn subscribe(
     context: &Context,
     node_name: &NodeName,
     node: &mut Node,
     nc: &NodeConfig,
+    robot: &crate::robot::RobotConfig,
     shared: Arc<Mutex<Shared>>,
     remaps: &Remaps,
 ) -> Result<()> {
@@ -334,6 +338,21 @@ pub fn subscribe(
         state_qos(100),
         Shared::on_joint_state,
     )?;
+    if !robot.description_topic.is_empty() {
+        // As robot_state_publisher offers it: reliable, transient local (late joiners get it).
+        let qos = state_qos(1).durability(Durability::TransientLocal);
+        s.subscribe_until(
+            &robot.description_topic,
+            ("std_msgs", "String"),
+            qos,
+            |s: &mut Shared, urdf: StringMsg| {
+                if s.inputs.is_none() {
+                    s.robot_description = Some(urdf.data);
+                }
+            },
+            |s| s.inputs.is_some(),
+        )?;
+    }
     if nc.use_sim_time {
         // As rclcpp's clock subscription: best effort, the newest message only.
         let qos = sensor_qos().history(History::KeepLast { depth: 1 });

@@ -16,6 +16,7 @@ use crate::inputs::{TickInputs, decode_depth, decode_image, decode_labels};
 use crate::math::Pose;
 use crate::msgs::{Header, Time};
 use crate::render::{Camera, GaussianCloud};
+use crate::robot::RobotConfig;
 use crate::scene::Scene;
 use crate::topics::NodeConfig;
 use crate::tracker::{Observer, Tick, Tracker};
@@ -161,24 +162,34 @@ fn start_tracker(
                 stamp: Time::from_seconds(s.clock.now().unwrap_or(0.0)),
                 frame_id: String::new(),
             };
-            let needs_images = config.scene.scenario.is_none();
-            let waiting = waiting_diagnostics(&header, &s, nc, needs_images, said_at - started);
+            let from_frames = config.scene.scenario.is_none();
+            let description = &config.robot.description_topic;
+            let description =
+                (from_frames && !description.is_empty() && s.robot_description.is_none())
+                    .then_some(description.as_str());
+            let waiting =
+                waiting_diagnostics(&header, &s, nc, from_frames, description, said_at - started);
             // A full channel only means the publisher is busy; the next period says it again.
             let _ = tx.try_send(Output::Waiting(waiting));
         }
         if stop.load(Ordering::SeqCst) {
             return Ok(None);
         }
-        let (cameras, needs_images, clock_runs) = {
+        let (cameras, needs_images, clock_runs, needs_description) = {
             let s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
             let cameras = ready_cameras(&s, nc);
-            let needs_images = config.scene.scenario.is_none()
-                && cameras.iter().any(|(c, _)| !s.first_images.contains_key(c));
-            (cameras, needs_images, s.clock.now().is_some())
+            let from_frames = config.scene.scenario.is_none();
+            let needs_images =
+                from_frames && cameras.iter().any(|(c, _)| !s.first_images.contains_key(c));
+            let needs_description = from_frames
+                && !config.robot.description_topic.is_empty()
+                && s.robot_description.is_none();
+            let clock_runs = s.clock.now().is_some();
+            (cameras, needs_images, clock_runs, needs_description)
         };
         let waited = RosClock::wall() - started;
         let all = cameras.len() == nc.cameras.len();
-        let ready = !cameras.is_empty() && !needs_images && clock_runs;
+        let ready = !cameras.is_empty() && !needs_images && clock_runs && !needs_description;
         if ready && (all || waited > nc.camera_wait as f64) {
             let mut s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
             report_unused_cameras(&mut s, nc, &cameras, waited);
@@ -322,8 +333,52 @@ fn build_scene(config: &Config, cameras: &[(String, Camera)], s: &Shared) -> Res
             named.filter(|(_, v)| v.is_finite()).collect()
         })
         .unwrap_or_default();
-    let (scene, _report) = crate::init::build_scene(&config.init(), &frames, &joints, false)?;
+    let robot = robot_config(config, s)?;
+    let settings = crate::init::Settings {
+        robot: &robot,
+        ..config.init()
+    };
+    let (scene, _report) = crate::init::build_scene(&settings, &frames, &joints, false)?;
     Ok(scene)
+}
+
+/// The robot as the node builds it: from the URDF received on `robot.description_topic` when
+/// one is set, and standing where the tf tree puts its base frame when it reaches it from the
+/// world frame (else at `robot.base_position` / `base_orientation`, said in the log).
+fn robot_config(config: &Config, s: &Shared) -> Result<RobotConfig> {
+    let mut robot = config.robot.clone();
+    let topic = &robot.description_topic;
+    if !topic.is_empty() {
+        let text = s.robot_description.clone();
+        robot.description = Some(text.with_context(|| format!("no URDF received on {topic}"))?);
+    }
+    let text = match (&robot.description, &robot.urdf) {
+        (Some(text), _) => text.clone(),
+        (None, Some(path)) => std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read URDF {}", path.display()))?,
+        (None, None) => return Ok(robot),
+    };
+    let frame = match robot.base_frame.is_empty() {
+        true => crate::robot::root_link_name(&text)?,
+        false => robot.base_frame.clone(),
+    };
+    let world = &config.node.world_frame;
+    match s.tf.lookup_nearest(world, &frame, 0.0) {
+        Ok(world_from_base) => {
+            robot.base_position = world_from_base.translation;
+            robot.base_orientation = world_from_base.rotation.to_array();
+            log(&format!(
+                "robot base from tf {world} -> {frame}: position {:?}, orientation (x, y, z, w) {:?}",
+                robot.base_position.to_array(),
+                robot.base_orientation
+            ));
+        }
+        Err(why) => log(&format!(
+            "robot base: no tf {world} -> {frame} ({why}); robot.base_position {:?} used",
+            robot.base_position.to_array()
+        )),
+    }
+    Ok(robot)
 }
 
 /// A decoded first depth or mask image, or None with the reason logged: initialisation goes on

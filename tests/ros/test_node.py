@@ -31,7 +31,7 @@ from tf2_msgs.msg import TFMessage
 
 ROOT = Path(os.environ.get("PEGS_ROOT", Path(__file__).resolve().parents[2]))
 sys.path.insert(0, str(ROOT / "launch_scripts"))
-from play_recording import RELIABLE, SENSOR, Player, restamped  # noqa: E402
+from play_recording import LATCHED, RELIABLE, SENSOR, Player, restamped  # noqa: E402
 
 PEGS = os.environ["PEGS_BIN"]
 RUN_SECONDS = 4.5  # the scenario's length
@@ -371,6 +371,9 @@ def test_a_camera_that_stops_is_reported_and_tracking_continues(main_run):
     status = last_diagnostics(main_run)
     assert level(status["pegs: camera cam2"]) == 2 and "stopped publishing" in status["pegs: camera cam2"].message
     assert level(status["pegs: camera cam0"]) in (0, 1)
+    # The ages of the images the ticks used are reported, and none is past the limit (70 ms).
+    ages = {kv.key: kv.value for kv in status["pegs: camera cam0"].values}
+    assert int(ages["ticks_used"]) > 0 and 0 < float(ages["age_used_ms_max"]) <= 70.0, ages
     # Poses kept coming after cam2 stopped (checked against the truth in the tracking test).
     player, start = main_run["player"], main_run["start"]
     after = [m for _, m in main_run["recorder"].got["objects"] if player.recording_time(stamp_of(m)) > 3.0]
@@ -745,3 +748,59 @@ def set_stamp_clock(msg, t: float):
     msg.clock.sec = int(t)
     msg.clock.nanosec = int(round((t - int(t)) * 1e9)) % 1_000_000_000
     return msg
+
+
+def test_the_robot_comes_from_robot_description_and_stands_where_tf_puts_its_base(recording, ros):
+    """robot_state_publisher offers the URDF on /robot_description (transient local) and the rig's
+    calibration puts the robot's root link in the tf tree: with robot.description_topic set and no
+    URDF file, the node waits for the description (start-up diagnostics name it), builds the arm
+    from it, and places its base from tf world -> panda_link0 rather than from the configured
+    base_position (0.5 m off here); the pushed box is then tracked as with the true base."""
+    from geometry_msgs.msg import TransformStamped
+    from std_msgs.msg import String
+    config = recording / "description.yaml"
+    config.write_text(
+        "pegs:\n  ros__parameters:\n    robot: {description_topic: /robot_description, base_position: [0.0, 0.0, 0.5]}\n"
+        "    node: {cameras: [cam0, cam1, cam2]}\n"
+        "    scene:\n      rgbd_objects: [{name: box, label: 1, mass: 0.36, particle_radius: 0.005}]\n"
+        "      ground_from_depth: true\n")
+    node = rclpy.create_node("pegs_test_description")
+    recorder = Recorder(node)
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    log = recording / "description.log"
+    stats_path = recording / "description.stats.json"
+    with open(log, "w") as out:
+        proc = subprocess.Popen([PEGS, "node", "--config", str(config), "--stats", str(stats_path)], env=env, stdout=out, stderr=subprocess.STDOUT)
+    player = Player(node, str(recording / "recording"))
+    wait_for_discovery(node, player)
+    player.begin(time.time() + 0.2)
+    spin_for(node, 2.0, player)
+    waiting = [m for _, m in recorder.got.get("diagnostics", [])]
+    assert recorder.count("objects") == 0, "tracking started without the robot's description"
+    description = node.create_publisher(String, "/robot_description", LATCHED)
+    description.publish(String(data=(ROOT / "urdf" / "panda_pusher.urdf").read_text()))
+    base = TransformStamped()
+    base.header.frame_id, base.child_frame_id = "world", "panda_link0"
+    base.transform.rotation.w = 1.0
+    node.create_publisher(TFMessage, "/tf_static", LATCHED).publish(TFMessage(transforms=[base]))
+    player.cursor = 0
+    player.begin(time.time() + 0.5)
+    spin_for(node, RUN_SECONDS + 0.5, player)
+    stop_node(proc, stats_path)
+    node.destroy_node()
+    text = log.read_text()
+    assert any("robot_description on /robot_description" in s.message for m in waiting for s in m.status), "start-up diagnostics name the description"
+    assert "robot base from tf world -> panda_link0: position [0.0, 0.0, 0.0]" in text, text
+    status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
+    assert level(status["pegs: robot"]) == 0, status["pegs: robot"].message
+    track = ground_truth(recording)
+    errors = []
+    for _, msg in recorder.got["objects"]:
+        t = player.recording_time(stamp_of(msg))
+        if 1.0 <= t <= RUN_SECONDS:
+            (box,) = [o for o in msg.objects if o.name == "box"]
+            _, x, y, z = truth_at(track, t)
+            errors.append(math.dist((box.pose.position.x, box.pose.position.y, box.pose.position.z), (x, y, z)))
+    mean_mm = 1e3 * sum(errors) / max(len(errors), 1)
+    print(f"robot from /robot_description, base from tf: box tracked at {mean_mm:.1f} mm mean over {len(errors)} ticks")
+    assert len(errors) >= 8 and mean_mm < 15.0, f"{len(errors)} ticks, {mean_mm:.1f} mm"
