@@ -31,7 +31,10 @@ pub struct NodeConfig {
     /// it has; a camera ready later joins at the next tick.
     pub camera_wait: f32,
     /// Prefix of every output topic: `{prefix}/objects`, `{prefix}/poses`, `{prefix}/particles`,
-    /// `{prefix}/debug/{camera}/image` (and `/compressed`).
+    /// `{prefix}/debug/{camera}/image` (and `/compressed`). Topic names resolve as in rcl: `/x`
+    /// absolute, `~` the node's own name (`/pegs` by default, `/ns/pegs` in a namespace), any other
+    /// name under the node's namespace (`joint_states` is `/joint_states`, or `/ns/joint_states`).
+    /// A recording has no namespace: there both are taken from the root.
     pub output_prefix: String,
     /// Render and publish debug images every N ticks (0: never).
     pub debug_images_every: u32,
@@ -53,10 +56,10 @@ impl Default for NodeConfig {
             mask_topic: "/camera/{camera}/mask/image_raw".into(),
             depth_unit: 0.001,
             optical_frame: String::new(),
-            joint_states_topic: "/joint_states".into(),
+            joint_states_topic: "joint_states".into(),
             world_frame: "world".into(),
             camera_wait: 5.0,
-            output_prefix: "/pegs".into(),
+            output_prefix: "~".into(),
             debug_images_every: 10,
             diagnostics_period: 1.0,
             use_sim_time: false,
@@ -107,6 +110,15 @@ impl NodeConfig {
             );
         }
         Ok(())
+    }
+
+    /// `name` as an absolute topic name in a recording (no namespace: relative names from the
+    /// root).
+    pub fn in_recording(name: &str) -> String {
+        format!(
+            "/{}",
+            name.trim_start_matches(['/', '~']).trim_start_matches('/')
+        )
     }
 
     /// `template` with `{camera}` replaced.

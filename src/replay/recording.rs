@@ -70,7 +70,7 @@ impl Topics {
             return Role::Mask(c);
         }
         match topic {
-            t if t == n.joint_states_topic => Role::JointStates,
+            t if t == NodeConfig::in_recording(&n.joint_states_topic) => Role::JointStates,
             "/tf_static" => Role::TfStatic,
             "/tf" => Role::Tf,
             _ => Role::Other,

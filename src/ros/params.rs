@@ -139,20 +139,48 @@ pub struct LaunchArgs {
     pub remaps: Remaps,
 }
 
-/// Topic remaps from `-r from:=to`, by fully qualified name (a name without a leading '/' is
-/// taken from the root).
+/// Topic names as rcl resolves them for this node: `/name` is absolute, `~/name` lies under the
+/// node (`/ns/node/name`), any other name under its namespace (`/ns/name`); then the first
+/// `-r from:=to` rule whose `from` resolves to the same name renames it (`to` resolved alike).
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Remaps(pub Vec<(String, String)>);
+pub struct Remaps {
+    pub rules: Vec<(String, String)>,
+    /// The node's namespace (empty or `/`: the root) and name (empty: `pegs`).
+    pub namespace: String,
+    pub node: String,
+}
 
 impl Remaps {
-    /// The topic `name` is remapped to, or `name` itself.
+    /// `name` resolved against the node's namespace and name, before remapping.
+    pub fn expand(&self, name: &str) -> String {
+        let ns = self.namespace.trim_matches('/');
+        let ns = if ns.is_empty() {
+            String::new()
+        } else {
+            format!("/{ns}")
+        };
+        let node = if self.node.is_empty() {
+            "pegs"
+        } else {
+            &self.node
+        };
+        let full = if let Some(absolute) = name.strip_prefix('/') {
+            format!("/{absolute}")
+        } else if let Some(private) = name.strip_prefix('~') {
+            format!("{ns}/{node}/{}", private.trim_start_matches('/'))
+        } else {
+            format!("{ns}/{name}")
+        };
+        full.trim_end_matches('/').to_string()
+    }
+
+    /// The topic `name` resolves to, remapped.
     pub fn apply(&self, name: &str) -> String {
-        let absolute = |n: &str| format!("/{}", n.trim_start_matches('/'));
-        let name = absolute(name);
-        self.0
+        let full = self.expand(name);
+        self.rules
             .iter()
-            .find(|(from, _)| absolute(from) == name)
-            .map_or(name, |(_, to)| absolute(to))
+            .find(|(from, _)| self.expand(from) == full)
+            .map_or(full, |(_, to)| self.expand(to))
     }
 }
 
@@ -179,7 +207,7 @@ pub fn parse_ros_args(args: &[String]) -> Result<LaunchArgs> {
                     Some(("__node" | "__name", name)) => out.node_name = Some(name.to_string()),
                     Some(("__ns", ns)) => out.namespace = Some(ns.to_string()),
                     Some((from, to)) if !from.starts_with("__") && !to.is_empty() => {
-                        out.remaps.0.push((from.to_string(), to.to_string()))
+                        out.remaps.rules.push((from.to_string(), to.to_string()))
                     }
                     _ => bail!(
                         "-r {item}: expected /topic:=/other, __node:=name or __ns:=/namespace"
@@ -196,6 +224,8 @@ pub fn parse_ros_args(args: &[String]) -> Result<LaunchArgs> {
             ),
         }
     }
+    out.remaps.namespace = out.namespace.clone().unwrap_or_default();
+    out.remaps.node = out.node_name.clone().unwrap_or_default();
     Ok(out)
 }
 
@@ -450,6 +480,27 @@ mod tests {
         assert_eq!(remaps.apply("/joint_states"), "/fr3/joint_states");
         assert_eq!(remaps.apply("joint_states"), "/fr3/joint_states");
         assert_eq!(remaps.apply("/tf"), "/tf");
+        // Relative and private names resolve against the namespace and node, remaps alike.
+        let args: Vec<String> = [
+            "-r",
+            "__ns:=/rig",
+            "-r",
+            "__node:=tracker",
+            "-r",
+            "joint_states:=arm/joint_states",
+        ]
+        .map(String::from)
+        .to_vec();
+        let names = parse_ros_args(&args).unwrap().remaps;
+        assert_eq!(names.apply("joint_states"), "/rig/arm/joint_states");
+        assert_eq!(names.apply("/rig/joint_states"), "/rig/arm/joint_states");
+        assert_eq!(names.apply("~/objects"), "/rig/tracker/objects");
+        assert_eq!(names.apply("~"), "/rig/tracker");
+        assert_eq!(
+            names.apply("/camera/cam0/color/image_raw"),
+            "/camera/cam0/color/image_raw"
+        );
+        assert_eq!(Remaps::default().apply("~/objects"), "/pegs/objects");
         assert!(parse_ros_args(&["-r".into(), "__bad:=x".into()]).is_err());
         assert!(node_key_matches("/**", "/pegs"));
         assert!(node_key_matches("pegs", "/pegs"));

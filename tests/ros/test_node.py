@@ -804,3 +804,44 @@ def test_the_robot_comes_from_robot_description_and_stands_where_tf_puts_its_bas
     mean_mm = 1e3 * sum(errors) / max(len(errors), 1)
     print(f"robot from /robot_description, base from tf: box tracked at {mean_mm:.1f} mm mean over {len(errors)} ticks")
     assert len(errors) >= 8 and mean_mm < 15.0, f"{len(errors)} ticks, {mean_mm:.1f} mm"
+
+
+def test_a_namespaced_node_resolves_its_topics_and_takes_its_sections_of_a_shared_params_file(recording, ros):
+    """Launched as /rig/pegs with a parameter file shared by the rig's nodes: relative topics
+    resolve under the namespace (joint_states -> /rig/joint_states, outputs under /rig/pegs),
+    absolute ones (cameras, /tf_static, /diagnostics) stay; the node applies `/**` and its own
+    `/rig/pegs` section in file order, ignores the other nodes' sections and their keys under
+    `/**`, and serves the result as parameters."""
+    params = recording / "rig_params.yaml"
+    params.write_text(
+        "/**:\n  ros__parameters:\n    use_sim_time: false\n    serial_no: '0123'\n    correct:\n      gain: 900.0\n"
+        "/camera/cam0:\n  ros__parameters:\n    rgb_camera.color_profile: 640x360x30\n    correct:\n      gain: 5.0\n"
+        "/rig/pegs:\n  ros__parameters:\n    correct:\n      damping: 33.0\n"
+        "/other/pegs:\n  ros__parameters:\n    correct:\n      damping: 1.0\n")
+    node = rclpy.create_node("pegs_test_namespace")
+    got = []
+    node.create_subscription(TrackedObjectArray, "/rig/pegs/objects", lambda m: got.append(m), 50)
+    js_pub = node.create_publisher(JointState, "/rig/joint_states", RELIABLE)
+    proc, stats_path = start_node(recording, "namespace", ("-r", "__ns:=/rig", "--params-file", str(params)))
+    player = Player(node, str(recording / "recording"))
+    end = time.time() + 20
+    while time.time() < end and (node.count_publishers("/rig/pegs/objects") == 0 or node.count_subscribers("/rig/joint_states") == 0):
+        rclpy.spin_once(node, timeout_sec=0.05)
+    subscribed_root = node.count_subscribers("/joint_states")
+    # The recording's joint states go to the namespaced topic.
+    for k, (t, topic, type_name, cdr) in enumerate(player.messages):
+        if topic == "/joint_states":
+            player.messages[k] = (t, "/rig/joint_states", type_name, cdr)
+    player.publishers["/rig/joint_states"] = js_pub
+    spin_for(node, 0.5)
+    player.begin(time.time() + 0.2)
+    spin_for(node, 3.0, player)
+    get = node.create_client(GetParameters, "/rig/pegs/get_parameters")
+    values = call(node, get, GetParameters.Request(names=["correct.gain", "correct.damping", "use_sim_time"])).values
+    stop_node(proc, stats_path)
+    node.destroy_node()
+    log = (recording / "namespace.log").read_text()
+    assert len(got) >= 5, f"{len(got)} messages on /rig/pegs/objects"
+    assert subscribed_root == 0, "the node reads /joint_states outside its namespace"
+    assert [values[0].double_value, values[1].double_value, values[2].bool_value] == [900.0, 33.0, False], values
+    assert "'serial_no' under '/**' is not a pegs parameter; ignored" in log, log
