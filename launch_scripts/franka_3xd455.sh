@@ -8,9 +8,9 @@
 # Usage: franka_3xd455.sh [CONFIG.yaml] [-- node arguments]
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
-CONFIG=${1:-$ROOT/config/franka_3xd455.yaml}
-shift || true
-[ "${1:-}" = "--" ] && shift
+CONFIG=$ROOT/config/franka_3xd455.yaml
+if [ $# -gt 0 ] && [ "$1" != "--" ]; then CONFIG=$1; shift; fi
+if [ "${1:-}" = "--" ]; then shift; fi
 cargo build --release --locked --manifest-path "$ROOT/Cargo.toml" >&2
 TARGET_DIR=$(cargo metadata --format-version 1 --no-deps --locked --manifest-path "$ROOT/Cargo.toml" | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
 cd "$ROOT"
