@@ -145,7 +145,7 @@ pub struct Wrench {
     pub torque: Vector3,
 }
 
-/// `pegs/TrackedObject` (msg/TrackedObject.msg).
+/// `pegs_msgs/TrackedObject` (msg/TrackedObject.msg).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TrackedObject {
     pub name: String,
@@ -154,7 +154,7 @@ pub struct TrackedObject {
     pub visual_wrench: Wrench,
 }
 
-/// `pegs/TrackedObjectArray` (msg/TrackedObjectArray.msg).
+/// `pegs_msgs/TrackedObjectArray` (msg/TrackedObjectArray.msg).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TrackedObjectArray {
     pub header: Header,

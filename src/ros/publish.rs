@@ -87,7 +87,7 @@ pub fn create_publishers(node: &mut Node, nc: &NodeConfig, remaps: &Remaps) -> R
         objects: make(
             (node, remaps),
             &format!("{p}/objects"),
-            "pegs",
+            "pegs_msgs",
             "TrackedObjectArray",
             state_qos(10),
         )?,

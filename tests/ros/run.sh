@@ -1,14 +1,18 @@
 #!/usr/bin/env bash
-# rclpy integration tests of `pegs node`. Sets up the venv (tests/ros/setup_venv.sh), then runs
-# pytest inside a fresh network namespace that has only the loopback interface (multicast on),
-# so DDS traffic never leaves the machine and parallel runs do not see each other.
-# Usage: run.sh PEGS_BINARY
+# rclpy integration tests of `pegs node`. Sets up the venv (tests/ros/setup_venv.sh), builds pegs
+# and pegs_msgs with colcon (tests/ros/colcon_build.sh, reusing PEGS_BINARY's cargo build), then
+# runs pytest on the colcon-installed node and messages inside a fresh network namespace that has
+# only the loopback interface (multicast on), so DDS traffic never leaves the machine and parallel
+# runs do not see each other.
+# Usage: run.sh PEGS_BINARY (target/release/pegs of the cargo build to reuse)
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 PEGS_BIN=$(realpath "$1")
 TARGET=$(dirname "$(dirname "$PEGS_BIN")")
 VENV=${PEGS_ROS_VENV:-$TARGET/ros-venv}
 bash "$ROOT/tests/ros/setup_venv.sh" "$VENV"
+INSTALL=$(bash "$ROOT/tests/ros/colcon_build.sh" "$VENV" "$TARGET")
+PYVER=$("$VENV/bin/python" -c 'import sys; print(f"python{sys.version_info[0]}.{sys.version_info[1]}")')
 
 SUDO=""
 if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
@@ -29,7 +33,9 @@ $SUDO sysctl -q -w net.core.rmem_max=16777216 net.core.rmem_default=16777216 net
   || echo "warning: could not raise socket buffers; large images may be dropped"
 
 $SUDO ip netns exec "$NS" env \
-  PEGS_BIN="$PEGS_BIN" PEGS_ROOT="$ROOT" \
+  PEGS_BIN="$INSTALL/pegs/lib/pegs/pegs" PEGS_ROOT="$ROOT" PEGS_INSTALL="$INSTALL" \
+  PYTHONPATH="$INSTALL/pegs_msgs/lib/$PYVER/site-packages" LD_LIBRARY_PATH="$INSTALL/pegs_msgs/lib" \
+  AMENT_PREFIX_PATH="$INSTALL/pegs:$INSTALL/pegs_msgs:$VENV" \
   RMW_IMPLEMENTATION=rmw_fastrtps_cpp ROS_DISTRO=jazzy ROS_DOMAIN_ID=17 \
   FASTRTPS_DEFAULT_PROFILES_FILE="$ROOT/tests/ros/fastdds_loopback.xml" \
   XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}" PYTHONUNBUFFERED=1 \

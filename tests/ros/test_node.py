@@ -22,7 +22,7 @@ import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
-from pegs.msg import TrackedObjectArray
+from pegs_msgs.msg import TrackedObjectArray
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.qos import qos_profile_sensor_data
@@ -777,12 +777,13 @@ def test_the_robot_comes_from_robot_description_and_stands_where_tf_puts_its_bas
     spin_for(node, 2.0, player)
     waiting = [m for _, m in recorder.got.get("diagnostics", [])]
     assert recorder.count("objects") == 0, "tracking started without the robot's description"
-    description = node.create_publisher(String, "/robot_description", LATCHED)
-    description.publish(String(data=(ROOT / "urdf" / "panda_pusher.urdf").read_text()))
     base = TransformStamped()
     base.header.frame_id, base.child_frame_id = "world", "panda_link0"
     base.transform.rotation.w = 1.0
     node.create_publisher(TFMessage, "/tf_static", LATCHED).publish(TFMessage(transforms=[base]))
+    spin_for(node, 0.5)  # the calibration is up before the robot's driver
+    description = node.create_publisher(String, "/robot_description", LATCHED)
+    description.publish(String(data=(ROOT / "urdf" / "panda_pusher.urdf").read_text()))
     player.cursor = 0
     player.begin(time.time() + 0.5)
     spin_for(node, RUN_SECONDS + 0.5, player)
@@ -791,8 +792,8 @@ def test_the_robot_comes_from_robot_description_and_stands_where_tf_puts_its_bas
     text = log.read_text()
     assert any("robot_description on /robot_description" in s.message for m in waiting for s in m.status), "start-up diagnostics name the description"
     assert "robot base from tf world -> panda_link0: position [0.0, 0.0, 0.0]" in text, text
-    status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
-    assert level(status["pegs: robot"]) == 0, status["pegs: robot"].message
+    robot = [s for _, m in recorder.got["diagnostics"] for s in m.status if s.name == "pegs: robot"]
+    assert robot and level(robot[-1]) == 0, robot[-1].message if robot else "no robot status: tracking never ran"
     track = ground_truth(recording)
     errors = []
     for _, msg in recorder.got["objects"]:
@@ -845,3 +846,29 @@ def test_a_namespaced_node_resolves_its_topics_and_takes_its_sections_of_a_share
     assert subscribed_root == 0, "the node reads /joint_states outside its namespace"
     assert [values[0].double_value, values[1].double_value, values[2].bool_value] == [900.0, 33.0, False], values
     assert "'serial_no' under '/**' is not a pegs parameter; ignored" in log, log
+
+
+def test_colcon_installs_the_node_its_configuration_urdfs_and_messages():
+    """`colcon build` of this repository (colcon-ros-cargo for pegs, ament_cmake for pegs_msgs in
+    msg/) installs what a ROS user runs: the executable where `ros2 run pegs pegs` looks, the
+    configurations and URDFs in share/pegs (the rig configuration finds its URDF there), and the
+    pegs_msgs Python messages these tests import."""
+    import pegs_msgs
+    install = Path(os.environ["PEGS_INSTALL"]).resolve()
+    assert Path(pegs_msgs.__file__).resolve().is_relative_to(install / "pegs_msgs"), pegs_msgs.__file__
+    assert Path(PEGS).resolve() == install / "pegs" / "lib" / "pegs" / "pegs"
+    assert (install / "pegs" / "share" / "ament_index" / "resource_index" / "packages" / "pegs").exists()
+    share = install / "pegs" / "share" / "pegs"
+    for f in ["package.xml", "config/pegs.yaml", "config/franka_3xd455.yaml", "urdf/panda_pusher.urdf"]:
+        assert (share / f).is_file(), f
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    run = subprocess.run([PEGS, "node", "--config", str(share / "config" / "franka_3xd455.yaml"), "--duration", "0.5"],
+                         env=env, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stdout + run.stderr
+    (share / "urdf" / "panda_pusher.urdf").rename(share / "urdf" / "moved.urdf")
+    try:
+        run = subprocess.run([PEGS, "node", "--config", str(share / "config" / "franka_3xd455.yaml"), "--duration", "0.5"],
+                             env=env, capture_output=True, text=True, timeout=60)
+    finally:
+        (share / "urdf" / "moved.urdf").rename(share / "urdf" / "panda_pusher.urdf")
+    assert run.returncode != 0 and "panda_pusher.urdf does not exist" in run.stdout + run.stderr, run.stdout + run.stderr
