@@ -3,6 +3,7 @@
 //! data and hands what each tick produced to a publishing thread, so neither waits on the network.
 //!
 //! - `params`: the configuration as ROS parameters and `--ros-args` overrides.
+//! - `parameters`: the parameter services, with descriptors, on the running configuration.
 //! - `node`: the node itself: parameters, the three kinds of threads, run statistics.
 //! - `clock`: the node's clock (wall, or `/clock` with `use_sim_time`).
 //! - `subscribe`: topics in, checked and handed to the shared state.
@@ -15,6 +16,7 @@ mod clock;
 mod diagnostics;
 pub mod node;
 pub mod outputs;
+pub mod parameters;
 pub mod params;
 mod publish;
 mod subscribe;

@@ -7,7 +7,7 @@
 //!   previous one is still being sent (`publish`).
 
 use super::log;
-use super::params::{self, LaunchArgs};
+use super::params::LaunchArgs;
 use super::publish::{Output, create_publishers, publish_loop};
 use super::subscribe::{Shared, subscribe};
 use super::tick::tick_loop;
@@ -91,48 +91,6 @@ pub fn run(config: Config, launch: &LaunchArgs, options: RunOptions) -> Result<R
     runtime.block_on(run_async(config, launch, options))
 }
 
-/// The configuration as declared parameters, checked and applied through the parameter services
-/// (`live` holds what the tick thread applies from its next tick).
-fn node_options(config: &Config, live: &Arc<Mutex<Config>>) -> Result<NodeOptions> {
-    let mut options = NodeOptions::new()
-        .enable_rosout(true)
-        .start_parameter_services(true);
-    for (name, value) in params::flatten(config)? {
-        options = options.declare_parameter(&name, value);
-    }
-    let (check, apply) = (live.clone(), live.clone());
-    let next = |current: &Config, name: &str, value: &ros2_client::ParameterValue| {
-        let json = params::from_parameter(value)
-            .ok_or_else(|| format!("{name}: unsupported value type"))?;
-        params::with_parameter(current, name, json).map_err(|e| format!("{e:#}"))
-    };
-    Ok(options
-        .parameter_validator(Box::new(move |name, value| {
-            let lock = check.lock();
-            let current = lock
-                .map_err(|_| "configuration lock poisoned".to_string())?
-                .clone();
-            if next(&current, name, value)? != current && !params::is_live(name) {
-                return Err(format!(
-                    "{name} is fixed once the node runs; restart with -p {name}:=VALUE"
-                ));
-            }
-            Ok(())
-        }))
-        .parameter_set_action(Box::new(move |name, value| {
-            let lock = apply.lock();
-            let mut current = lock.map_err(|_| "configuration lock poisoned".to_string())?;
-            let updated = next(&current, name, value)?;
-            if updated != *current {
-                log(&format!(
-                    "parameter {name} set to {value:?}; applied from the next tick"
-                ));
-                *current = updated;
-            }
-            Ok(())
-        })))
-}
-
 async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> Result<RunStats> {
     config.node.validate_live()?;
     config.scene.check_tracks_something()?;
@@ -143,10 +101,15 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
     let namespace = launch.namespace.clone().unwrap_or_else(|| "/".into());
     let node_name =
         NodeName::new(&namespace, &node_name).map_err(|e| anyhow!("bad node name: {e:?}"))?;
+    // The parameter services are pegs's own (`parameters`): ros2-client's have no descriptors.
+    let node_options = NodeOptions::new()
+        .enable_rosout(true)
+        .start_parameter_services(false);
     let mut node = context
-        .new_node(node_name.clone(), node_options(&config, &live)?)
+        .new_node(node_name.clone(), node_options)
         .map_err(|e| anyhow!("cannot create node: {e:?}"))?;
     tokio::spawn(node.spinner().map_err(|e| anyhow!("{e:?}"))?.spin());
+    super::parameters::start(&context, &mut node, live.clone())?;
     let (rosout_tx, mut rosout_rx) = tokio::sync::mpsc::unbounded_channel::<String>();
     if let Ok(mut rosout) = super::ROSOUT.lock() {
         *rosout = Some(rosout_tx);

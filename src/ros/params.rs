@@ -19,7 +19,7 @@ pub fn is_live(name: &str) -> bool {
 }
 
 /// The configuration's `node.use_sim_time` is the parameter every ROS node has: `use_sim_time`.
-const SIM_TIME: (&str, &str) = ("use_sim_time", "node.use_sim_time");
+pub const SIM_TIME: (&str, &str) = ("use_sim_time", "node.use_sim_time");
 
 /// The configuration path of parameter `name`.
 fn path_of(name: &str) -> &str {

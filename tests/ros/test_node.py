@@ -24,7 +24,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 from pegs_msgs.msg import TrackedObjectArray
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
+from rcl_interfaces.msg import ParameterEvent
+from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState, PointCloud2
 from tf2_msgs.msg import TFMessage
@@ -210,7 +211,8 @@ def main_run(recording, ros):
     spin_for(node, (start - time.time()) + RUN_SECONDS + 1.5, player, inject)
 
     # Parameters through the standard services, while the node runs.
-    params = {}
+    params = {"events": []}
+    node.create_subscription(ParameterEvent, "/parameter_events", params["events"].append, 50)
     listed = call(node, node.create_client(ListParameters, "/pegs/list_parameters"), ListParameters.Request())
     params["names"] = list(listed.result.names)
     get = node.create_client(GetParameters, "/pegs/get_parameters")
@@ -227,6 +229,9 @@ def main_run(recording, ros):
     params["set_bad_gain"] = set_param("correct.gain", -1.0)
     params["gain_after"] = call(node, get, GetParameters.Request(names=["correct.gain"])).values[0].double_value
     params["dt_after"] = call(node, get, GetParameters.Request(names=["physics.dt"])).values[0].double_value
+    describe = node.create_client(DescribeParameters, "/pegs/describe_parameters")
+    names = ["correct.gain", "physics.dt", "use_sim_time"]
+    params["described"] = call(node, describe, DescribeParameters.Request(names=names)).descriptors
     spin_for(node, 1.5)
     stats = stop_node(proc, stats_path)
     node.destroy_node()
@@ -389,6 +394,15 @@ def test_parameters_are_listed_read_and_set(main_run):
     assert not p["set_dt"].successful and "fixed" in p["set_dt"].reason
     assert not p["set_bad_gain"].successful
     assert abs(p["dt_after"] - 1 / 30) < 1e-6
+    # Descriptors: what changes live is writable, what builds the world is read-only.
+    gain, dt, sim = p["described"]
+    assert (gain.name, gain.type, gain.read_only) == ("correct.gain", ParameterType.PARAMETER_DOUBLE, False), gain
+    assert gain.description and "next tick" in gain.additional_constraints, gain
+    assert dt.read_only and "restart" in dt.additional_constraints, dt
+    assert sim.read_only and sim.type == ParameterType.PARAMETER_BOOL, sim
+    # The accepted change, and only it, is announced on /parameter_events.
+    changed = [(e.node, c.name, c.value.double_value) for e in p["events"] for c in e.changed_parameters]
+    assert changed == [("/pegs", "correct.gain", 800.0)], changed
     # The tick thread applies the new gain: diagnostics after the change report it.
     after = [m for t, m in main_run["recorder"].got["diagnostics"] if t > p["set_at"] + 0.2]
     gains = [float(kv.value) for m in after for st in m.status if st.name == "pegs: tracking" for kv in st.values if kv.key == "gain"]
