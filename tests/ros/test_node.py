@@ -886,3 +886,68 @@ def test_colcon_installs_the_node_its_configuration_urdfs_and_messages():
     finally:
         (share / "urdf" / "moved.urdf").rename(share / "urdf" / "panda_pusher.urdf")
     assert run.returncode != 0 and "panda_pusher.urdf does not exist" in run.stdout + run.stderr, run.stdout + run.stderr
+
+
+def qmul(a, b):
+    """Hamilton product of quaternions (x, y, z, w)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+
+
+def qrotate(q, v):
+    x, y, z, _ = qmul(qmul(q, (*v, 0.0)), (-q[0], -q[1], -q[2], q[3]))
+    return (x, y, z)
+
+
+def test_cameras_are_posed_through_a_two_hop_tf_chain(recording, ros):
+    """As realsense2_camera publishes it: the calibration gives world -> camN_link and the driver
+    camN_link -> camN_color_optical_frame. The node composes the chain, uses every camera, and
+    tracks the pushed box as well as with the direct world -> optical edge."""
+    from geometry_msgs.msg import TransformStamped
+    node = rclpy.create_node("pegs_test_tf_chain")
+    recorder = Recorder(node)
+    proc, stats_path = start_node(recording, "tf_chain")
+    player = Player(node, str(recording / "recording"))
+    link_q = (0.0, 0.0, math.sin(math.radians(15)), math.cos(math.radians(15)))  # 30 deg about z
+    link_t = (0.1, -0.05, 0.2)
+    chain = []
+    for t in player.tf_static.transforms:
+        optical = t.child_frame_id
+        link = optical.replace("_color_optical_frame", "_link")
+        assert link != optical, optical
+        first = TransformStamped()
+        first.header.frame_id, first.child_frame_id = t.header.frame_id, link
+        first.transform.translation.x, first.transform.translation.y, first.transform.translation.z = link_t
+        (first.transform.rotation.x, first.transform.rotation.y, first.transform.rotation.z, first.transform.rotation.w) = link_q
+        # link -> optical = (world -> link)^-1 (world -> optical)
+        inv = (-link_q[0], -link_q[1], -link_q[2], link_q[3])
+        r = t.transform.rotation
+        q = qmul(inv, (r.x, r.y, r.z, r.w))
+        d = t.transform.translation
+        p = qrotate(inv, (d.x - link_t[0], d.y - link_t[1], d.z - link_t[2]))
+        second = TransformStamped()
+        second.header.frame_id, second.child_frame_id = link, optical
+        second.transform.translation.x, second.transform.translation.y, second.transform.translation.z = p
+        (second.transform.rotation.x, second.transform.rotation.y, second.transform.rotation.z, second.transform.rotation.w) = q
+        chain += [first, second]
+    player.tf_static = TFMessage(transforms=chain)
+    wait_for_discovery(node, player)
+    player.begin(time.time() + 0.2)
+    spin_for(node, RUN_SECONDS + 0.5, player)
+    stop_node(proc, stats_path)
+    node.destroy_node()
+    log = (recording / "tf_chain.log").read_text()
+    assert "tracking 1 object(s) with 3 camera(s)" in log, log
+    track = ground_truth(recording)
+    errors = []
+    for _, msg in recorder.got["objects"]:
+        t = player.recording_time(stamp_of(msg))
+        if 1.0 <= t <= RUN_SECONDS:
+            (box,) = [o for o in msg.objects if o.name == "box"]
+            _, x, y, z = truth_at(track, t)
+            errors.append(math.dist((box.pose.position.x, box.pose.position.y, box.pose.position.z), (x, y, z)))
+    mean_mm = 1e3 * sum(errors) / max(len(errors), 1)
+    print(f"cameras through world -> link -> optical: box tracked at {mean_mm:.1f} mm mean over {len(errors)} ticks")
+    assert len(errors) >= 8 and mean_mm < 15.0, f"{len(errors)} ticks, {mean_mm:.1f} mm"
