@@ -22,7 +22,7 @@ for arg in "$@"; do
   esac
 done
 
-# The ROS 2 tests (tests/ros) also need a C/C++ toolchain (message bindings), venv and `ip netns`.
+# The ROS 2 tests (tests/ros) also need a C/C++ toolchain (message bindings, colcon), venv and `ip netns`.
 if ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 || ! command -v ffmpeg >/dev/null \
    || ! command -v g++ >/dev/null || ! command -v make >/dev/null || ! command -v ip >/dev/null \
    || ! python3 -c 'import ensurepip' 2>/dev/null; then
