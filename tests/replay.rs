@@ -492,3 +492,117 @@ fn bag_info_names_what_a_replay_would_use_and_what_is_missing() {
     );
     assert!(String::from_utf8_lossy(&o.stderr).contains("no usable camera"));
 }
+
+/// A rig's bag holds the URDF robot_state_publisher offered (`/robot_description`) and the
+/// calibration of the robot's base (`/tf_static` world -> panda_link0). With
+/// `robot.description_topic` set and no URDF file, replay builds the arm from the recorded URDF
+/// and stands it where the recorded tf puts it (the configured base is 0.5 m off), as the node
+/// does live; a bag without the description is refused naming the setting.
+#[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
+fn a_recorded_robot_description_and_base_tf_build_the_robot_as_the_rig_had_it() {
+    use pegs::msgs::{self, Header, Quaternion, TfMessage, Time, Transform, TransformStamped};
+    let scn = scratch("description");
+    pegs(&[
+        "scenario",
+        "generate",
+        "pushed_box",
+        "--out",
+        scn.to_str().unwrap(),
+        "--width",
+        "160",
+        "--height",
+        "90",
+        "--seconds",
+        "2.5",
+    ]);
+    let (messages, problem) = pegs::record::read_messages(&scn.join("recording")).unwrap();
+    assert!(problem.is_none());
+    let rig = scn.join("rig.mcap");
+    let mut w = pegs::record::RecordingWriter::create(&rig).unwrap();
+    let t0 = messages[0].time;
+    let urdf = msgs::StringMsg {
+        data: include_str!("../urdf/panda_pusher.urdf").to_string(),
+    };
+    let string_schema = ("std_msgs/msg/String", "string data\n".to_string());
+    w.write(
+        "/robot_description",
+        string_schema,
+        Time::from_seconds(t0),
+        &urdf,
+    )
+    .unwrap();
+    let base = TransformStamped {
+        header: Header {
+            stamp: Time::from_seconds(t0),
+            frame_id: "world".into(),
+        },
+        child_frame_id: "panda_link0".into(),
+        transform: Transform {
+            rotation: Quaternion {
+                w: 1.0,
+                ..Default::default()
+            },
+            ..Default::default()
+        },
+    };
+    let tf = TfMessage {
+        transforms: vec![base],
+    };
+    w.write(
+        "/tf_static",
+        msgs::schema::tf_message(),
+        Time::from_seconds(t0),
+        &tf,
+    )
+    .unwrap();
+    for m in &messages {
+        let schema = msgs::schema::of_type(&m.schema).unwrap();
+        w.write_raw(&m.topic, schema, m.time, &m.data).unwrap();
+    }
+    w.finish().unwrap();
+    let config = scn.join("rig.yaml");
+    std::fs::write(
+        &config,
+        "pegs:\n  ros__parameters:\n    robot: {description_topic: /robot_description, \
+         base_position: [0.0, 0.0, 0.5]}\n    scene:\n      rgbd_objects: [{name: box, label: 1, \
+         mass: 0.36, particle_radius: 0.005}]\n      ground_from_depth: true\n",
+    )
+    .unwrap();
+    let out = scratch("description-out");
+    let run = pegs(&[
+        "replay",
+        rig.to_str().unwrap(),
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let said = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        said.contains("robot base from tf world -> panda_link0: position [0.0, 0.0, 0.0]"),
+        "{said}"
+    );
+    let m = metrics(&out);
+    let error = m["tracking_error"]["box"]["mean_mm"].as_f64().unwrap();
+    assert!(error < 15.0, "box tracked at {error} mm");
+    let refused = Command::new(env!("CARGO_BIN_EXE_pegs"))
+        .args([
+            "replay",
+            scn.join("recording").to_str().unwrap(),
+            "--config",
+        ])
+        .args([
+            config.to_str().unwrap(),
+            "--out",
+            scratch("x2").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success(), "{err}");
+    assert!(
+        err.contains("robot.description_topic: no URDF on /robot_description"),
+        "{err}"
+    );
+}

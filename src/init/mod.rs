@@ -8,6 +8,7 @@ mod config;
 pub mod mask;
 pub mod object_file;
 pub mod rgbd;
+pub mod rig;
 pub mod table;
 
 pub use config::{ObjectConfig, RgbdObjectConfig, SceneConfig, TableConfig};

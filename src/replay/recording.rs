@@ -166,6 +166,8 @@ pub struct Streams {
     pub span: (f64, f64),
     /// Median of (log time - header stamp) over the images: where in the bag a stamp is found.
     pub log_offset: f64,
+    /// The URDF recorded on each `*robot_description` topic.
+    pub robot_descriptions: BTreeMap<String, String>,
 }
 
 /// Everything one pass over a recording finds, small enough to keep whatever the bag's length.
@@ -190,6 +192,10 @@ pub struct Survey {
     #[serde(skip)]
     pub log_offset: f64,
     pub problem: Option<String>,
+    /// The first `std_msgs/String` on each topic named `*robot_description`: the URDF as
+    /// robot_state_publisher offered it while the bag was recorded.
+    #[serde(skip)]
+    pub robot_descriptions: BTreeMap<String, String>,
 }
 
 /// Per camera while surveying.
@@ -226,6 +232,7 @@ impl Survey {
             window: (f64::NEG_INFINITY, f64::INFINITY),
             log_offset: 0.0,
             problem: None,
+            robot_descriptions: BTreeMap::new(),
         };
         let mut log_span = (f64::INFINITY, f64::NEG_INFINITY);
         let mut offsets = Vec::new();
@@ -296,7 +303,14 @@ impl Survey {
                             warnings.extend(survey.tf.add(&tf, false));
                         }
                     }
-                    Role::Other => {}
+                    Role::Other => {
+                        let description = m.topic.ends_with("robot_description")
+                            && !survey.robot_descriptions.contains_key(&m.topic);
+                        if description {
+                            let urdf: msgs::StringMsg = msgs::from_cdr(&m.data)?;
+                            survey.robot_descriptions.insert(m.topic.clone(), urdf.data);
+                        }
+                    }
                 }
                 Ok(())
             })();
@@ -495,6 +509,7 @@ impl Streams {
             window: survey.window,
             span,
             log_offset: survey.log_offset,
+            robot_descriptions: survey.robot_descriptions,
         })
     }
 }

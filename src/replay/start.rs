@@ -86,7 +86,27 @@ pub fn scene(
             frames.len()
         );
     }
-    let (scene, report) = init::build_scene(&config.init(), &frames, &first_joints, progress)?;
+    // The robot as the rig had it: the URDF recorded on `robot.description_topic`, the base where
+    // the recording's tf puts it.
+    let topic = crate::topics::NodeConfig::in_recording(&config.robot.description_topic);
+    let description = streams.robot_descriptions.get(&topic).map(String::as_str);
+    if description.is_none() && !config.robot.description_topic.is_empty() {
+        anyhow::bail!(
+            "robot.description_topic: no URDF on {topic} in the recording (robot descriptions \
+             found: {:?}); set robot.urdf instead",
+            streams.robot_descriptions.keys().collect::<Vec<_>>()
+        );
+    }
+    let world = &config.node.world_frame;
+    let (robot, line) = init::rig::rig_robot(&config.robot, description, &streams.tf, world)?;
+    if let Some(line) = line {
+        eprintln!("{line}");
+    }
+    let settings = init::Settings {
+        robot: &robot,
+        ..config.init()
+    };
+    let (scene, report) = init::build_scene(&settings, &frames, &first_joints, progress)?;
     for (name, o) in &report.objects {
         if let Some(a) = &o.alignment {
             eprintln!(

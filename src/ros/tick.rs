@@ -343,40 +343,13 @@ fn build_scene(config: &Config, cameras: &[(String, Camera)], s: &Shared) -> Res
 }
 
 /// The robot as the node builds it: from the URDF received on `robot.description_topic` when
-/// one is set, and standing where the tf tree puts its base frame when it reaches it from the
-/// world frame (else at `robot.base_position` / `base_orientation`, said in the log).
+/// one is set, standing where `/tf_static` puts its base (said in the log).
 fn robot_config(config: &Config, s: &Shared) -> Result<RobotConfig> {
-    let mut robot = config.robot.clone();
-    let topic = &robot.description_topic;
-    if !topic.is_empty() {
-        let text = s.robot_description.clone();
-        robot.description = Some(text.with_context(|| format!("no URDF received on {topic}"))?);
-    }
-    let text = match (&robot.description, &robot.urdf) {
-        (Some(text), _) => text.clone(),
-        (None, Some(path)) => std::fs::read_to_string(path)
-            .with_context(|| format!("cannot read URDF {}", path.display()))?,
-        (None, None) => return Ok(robot),
-    };
-    let frame = match robot.base_frame.is_empty() {
-        true => crate::robot::root_link_name(&text)?,
-        false => robot.base_frame.clone(),
-    };
+    let description = s.robot_description.as_deref();
     let world = &config.node.world_frame;
-    match s.tf.lookup_nearest(world, &frame, 0.0) {
-        Ok(world_from_base) => {
-            robot.base_position = world_from_base.translation;
-            robot.base_orientation = world_from_base.rotation.to_array();
-            log(&format!(
-                "robot base from tf {world} -> {frame}: position {:?}, orientation (x, y, z, w) {:?}",
-                robot.base_position.to_array(),
-                robot.base_orientation
-            ));
-        }
-        Err(why) => log(&format!(
-            "robot base: no tf {world} -> {frame} ({why}); robot.base_position {:?} used",
-            robot.base_position.to_array()
-        )),
+    let (robot, line) = crate::init::rig::rig_robot(&config.robot, description, &s.tf, world)?;
+    if let Some(line) = line {
+        log(&line);
     }
     Ok(robot)
 }
