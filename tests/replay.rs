@@ -606,3 +606,41 @@ fn a_recorded_robot_description_and_base_tf_build_the_robot_as_the_rig_had_it() 
         "{err}"
     );
 }
+
+/// A replay reports a tracked object lost, in its metrics and warnings, when the model's object no
+/// longer overlaps what the cameras see (started 15 cm off), and reports nothing when it tracks.
+#[test]
+fn a_replay_reports_an_object_it_lost_and_nothing_when_it_tracks() {
+    let scn = scratch("lost");
+    pegs(&[
+        "scenario",
+        "generate",
+        "resting_box",
+        "--out",
+        scn.to_str().unwrap(),
+        "--width",
+        "160",
+        "--height",
+        "90",
+        "--seconds",
+        "1.5",
+    ]);
+    let (rec, cfg) = (scn.join("recording"), scn.join("config.yaml"));
+    let tracked = replay(&rec, &cfg, &scratch("lost-tracked"), &[]);
+    assert_eq!(tracked["track_events"], serde_json::json!([]), "{tracked}");
+    let mut config = pegs::config::Config::load(&cfg).unwrap();
+    config.scene.offset_position = glam::Vec3::new(0.0, 0.15, 0.0);
+    let far_cfg = scn.join("far.yaml");
+    std::fs::write(&far_cfg, config.to_yaml().unwrap()).unwrap();
+    let far = replay(&rec, &far_cfg, &scratch("lost-far"), &[]);
+    let events = far["track_events"].as_array().unwrap();
+    assert!(!events.is_empty(), "{far}");
+    assert_eq!(events[0]["object"], "box");
+    assert_eq!(events[0]["lost"], true);
+    assert!(events[0]["at_s"].as_f64().unwrap() < 0.6, "{events:?}");
+    let said = far["warnings"].as_array().unwrap().iter();
+    assert!(
+        said.filter_map(|w| w.as_str())
+            .any(|w| w.contains("object box: lost at"))
+    );
+}

@@ -9,6 +9,7 @@
 //! the integration of the forces to `physics`.
 
 pub mod adam;
+pub mod agreement;
 
 use crate::render::{
     self, Backend, Camera, GaussianCloud, PixelGrads, RenderSettings, Renderer, Roi,
@@ -184,6 +185,9 @@ pub struct CorrectStats {
     pub force: Vec<Vec3>,
     /// Total visual torque per shape about its centroid (N m), indexed by shape id.
     pub torque: Vec<Vec3>,
+    /// Per shape: the silhouette agreement in the tick's first camera before any update
+    /// (`agreement`), None where it shows too little of the object.
+    pub agreement: Vec<Option<f32>>,
     /// Milliseconds per stage: `setup` (windows, crops, occluder weights), `forward`,
     /// `backward`, `gather` (gradients to the free Gaussians), `adam`, `forces`, and the
     /// renderer's own stages (`render.project`, ...) where it measures them.
@@ -364,6 +368,17 @@ impl Corrector {
                     .sum::<f32>()
                     * scale;
                 loss += camera_loss;
+                if it == 0 && j == 0 {
+                    stats.agreement = agreement::silhouette_agreement(
+                        world,
+                        &cloud,
+                        &free,
+                        &view.camera,
+                        *window,
+                        &out.colour,
+                        target,
+                    );
+                }
                 if !rendered[v] {
                     rendered[v] = true;
                     stats.loss_before += camera_loss;

@@ -53,9 +53,10 @@ pub struct RobotConfig {
     /// The URDF text received on `description_topic` (run-time data, never in a file).
     #[serde(skip)]
     pub description: Option<String>,
-    /// The tf frame of the URDF's root link: where `pegs node` finds the tf tree reaching it from
-    /// the world frame (on `/tf_static`), the robot stands there instead of at `base_position` /
-    /// `base_orientation`. Empty: the root link's name.
+    /// The tf frame of the URDF's root link: where the tf tree reaches it from the world frame
+    /// (`/tf_static`) when tracking starts, the robot stands there instead of at `base_position` /
+    /// `base_orientation`. Empty: the root link's name, used if the tf is there; named: `pegs node`
+    /// waits for it as long as for the cameras (`node.camera_wait`).
     pub base_frame: String,
 }
 

@@ -79,6 +79,7 @@ pub fn diagnostics(
     window: &Window,
     stats: &RunStats,
     dt: f64,
+    objects: &[ObjectHealth],
 ) -> Option<DiagnosticArray> {
     s.inputs.as_ref()?;
     let mut all = vec![tick_status(window, stats, dt)];
@@ -86,6 +87,7 @@ pub fn diagnostics(
     all.push(inputs_status(s));
     all.extend(robot_status(s, stats.ticks as f64 * dt));
     all.push(tracking_status(tick, window));
+    all.extend(objects.iter().map(object_status));
     Some(DiagnosticArray {
         header: header.clone(),
         status: all,
@@ -99,7 +101,7 @@ pub fn waiting_diagnostics(
     s: &Shared,
     nc: &NodeConfig,
     needs_images: bool,
-    description_topic: Option<&str>,
+    robot: &[String],
     waited: f64,
 ) -> DiagnosticArray {
     let mut missing = Vec::new();
@@ -116,9 +118,7 @@ pub fn waiting_diagnostics(
             missing.push(format!("{camera} first image"));
         }
     }
-    if let Some(topic) = description_topic {
-        missing.push(format!("robot_description on {topic}"));
-    }
+    missing.extend(robot.iter().cloned());
     if s.clock.now().is_none() {
         missing.push("/clock (use_sim_time)".into());
     }
@@ -280,6 +280,36 @@ fn inputs_status(s: &Shared) -> DiagnosticStatus {
         n => format!("{n} message(s) rejected so far"),
     };
     status(level, "pegs: inputs".into(), message, "pegs", values)
+}
+
+/// A tracked object's state for `/diagnostics`: its name, whether it is lost, and its newest
+/// silhouette agreement (`tracker::health`).
+pub struct ObjectHealth {
+    pub name: String,
+    pub lost: bool,
+    pub agreement: Option<f32>,
+}
+
+fn object_status(o: &ObjectHealth) -> DiagnosticStatus {
+    let agreement = o.agreement.map_or("none".into(), |a| format!("{a:.2}"));
+    let (level, message) = match o.lost {
+        true => (
+            DiagnosticStatus::ERROR,
+            format!(
+                "lost: its silhouette no longer agrees with the images (agreement {agreement}); \
+                 the model holds it where the images do not show it"
+            ),
+        ),
+        false => (DiagnosticStatus::OK, "tracked".to_string()),
+    };
+    let values = vec![kv("silhouette_agreement", agreement)];
+    status(
+        level,
+        format!("pegs: object {}", o.name),
+        message,
+        &o.name,
+        values,
+    )
 }
 
 /// Seconds of tracking after which a robot none of whose joints was named is an ERROR.

@@ -5,7 +5,7 @@
 //! passed instead of queueing them; a clock that goes back (a bag played again) restarts the
 //! world's clock there. What each tick produced goes to the publishing thread (`Outputs`).
 
-use super::diagnostics::{Window, diagnostics, waiting_diagnostics};
+use super::diagnostics::{ObjectHealth, Window, diagnostics, waiting_diagnostics};
 use super::node::RunStats;
 use super::publish::{Output, TickOutput};
 use super::subscribe::Shared;
@@ -163,33 +163,29 @@ fn start_tracker(
                 frame_id: String::new(),
             };
             let from_frames = config.scene.scenario.is_none();
-            let description = &config.robot.description_topic;
-            let description =
-                (from_frames && !description.is_empty() && s.robot_description.is_none())
-                    .then_some(description.as_str());
+            let (description, base) = robot_missing(config, &s);
+            let robot: Vec<String> = description.into_iter().chain(base).collect();
             let waiting =
-                waiting_diagnostics(&header, &s, nc, from_frames, description, said_at - started);
+                waiting_diagnostics(&header, &s, nc, from_frames, &robot, said_at - started);
             // A full channel only means the publisher is busy; the next period says it again.
             let _ = tx.try_send(Output::Waiting(waiting));
         }
         if stop.load(Ordering::SeqCst) {
             return Ok(None);
         }
-        let (cameras, needs_images, clock_runs, needs_description) = {
+        let (cameras, needs_images, clock_runs, (description, base)) = {
             let s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
             let cameras = ready_cameras(&s, nc);
             let from_frames = config.scene.scenario.is_none();
             let needs_images =
                 from_frames && cameras.iter().any(|(c, _)| !s.first_images.contains_key(c));
-            let needs_description = from_frames
-                && !config.robot.description_topic.is_empty()
-                && s.robot_description.is_none();
             let clock_runs = s.clock.now().is_some();
-            (cameras, needs_images, clock_runs, needs_description)
+            (cameras, needs_images, clock_runs, robot_missing(config, &s))
         };
         let waited = RosClock::wall() - started;
-        let all = cameras.len() == nc.cameras.len();
-        let ready = !cameras.is_empty() && !needs_images && clock_runs && !needs_description;
+        // The robot's description is waited for; a named base frame's tf as long as cameras are.
+        let all = cameras.len() == nc.cameras.len() && base.is_none();
+        let ready = !cameras.is_empty() && !needs_images && clock_runs && description.is_none();
         if ready && (all || waited > nc.camera_wait as f64) {
             let mut s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
             report_unused_cameras(&mut s, nc, &cameras, waited);
@@ -342,6 +338,23 @@ fn build_scene(config: &Config, cameras: &[(String, Camera)], s: &Shared) -> Res
     Ok(scene)
 }
 
+/// What the robot still lacks before a scene is built from the first frames: the URDF on
+/// `robot.description_topic`, and the tf to `robot.base_frame` when one is named.
+fn robot_missing(config: &Config, s: &Shared) -> (Option<String>, Option<String>) {
+    let robot = &config.robot;
+    if config.scene.scenario.is_some() {
+        return (None, None);
+    }
+    let topic = &robot.description_topic;
+    let description = (!topic.is_empty() && s.robot_description.is_none())
+        .then(|| format!("robot_description on {topic}"));
+    let world = &config.node.world_frame;
+    let frame = &robot.base_frame;
+    let base = (!frame.is_empty() && s.tf.lookup_nearest(world, frame, 0.0).is_err())
+        .then(|| format!("tf {world} -> {frame} (robot base)"));
+    (description, base)
+}
+
 /// The robot as the node builds it: from the URDF received on `robot.description_topic` when
 /// one is set, standing where `/tf_static` puts its base (said in the log).
 fn robot_config(config: &Config, s: &Shared) -> Result<RobotConfig> {
@@ -472,8 +485,20 @@ impl Outputs {
             return None;
         }
         self.last_diagnostics = RosClock::wall();
+        let world = tick.tracker.world();
+        let health = tick.tracker.health();
+        let objects: Vec<ObjectHealth> = world
+            .shapes
+            .dynamic_ids()
+            .map(|shape| ObjectHealth {
+                name: world.shapes.name[shape as usize].clone(),
+                lost: health.is_lost(shape),
+                agreement: health.agreement(shape),
+            })
+            .collect();
         let s = self.shared.lock().ok()?;
-        let d = diagnostics(header, &s, tick.inputs, &self.window, &self.stats, self.dt);
+        let (window, stats) = (&self.window, &self.stats);
+        let d = diagnostics(header, &s, tick.inputs, window, stats, self.dt, &objects);
         self.window = Window::default();
         d
     }
@@ -482,6 +507,17 @@ impl Outputs {
 impl Observer for Outputs {
     fn tick(&mut self, tick: &Tick) -> Result<()> {
         let world = tick.tracker.world();
+        for e in &tick.report.track_events {
+            let name = &world.shapes.name[e.shape as usize];
+            log(&match e.lost {
+                true => format!(
+                    "object {name}: lost (silhouette agreement {:.2}: the model no longer overlaps \
+                     what the cameras see)",
+                    e.agreement
+                ),
+                false => format!("object {name}: found again"),
+            });
+        }
         let header = Header {
             stamp: Time::from_seconds(tick.inputs.time),
             frame_id: self.world_frame.clone(),

@@ -6,8 +6,10 @@
 //! `Observer`s that see the tracker read-only after every tick. Nothing else touches the world
 //! between ticks.
 
+pub mod health;
 mod observer;
 
+pub use health::{TrackEvent, TrackHealth};
 pub use observer::{Observer, Tick};
 
 use crate::config::Config;
@@ -29,6 +31,8 @@ pub struct Tracker {
     solver: Solver,
     /// None: physics only (no visual forces).
     corrector: Option<Corrector>,
+    /// Which tracked objects are lost (their silhouettes no longer agree with the images).
+    health: TrackHealth,
 }
 
 /// What one tick did.
@@ -53,6 +57,8 @@ pub struct TickReport {
     /// Wall time of the prediction (catching up included) and of the correction, ms.
     pub predict_ms: f64,
     pub correct_ms: f64,
+    /// Objects lost or found again in this tick (`health`).
+    pub track_events: Vec<TrackEvent>,
 }
 
 impl Tracker {
@@ -78,6 +84,7 @@ impl Tracker {
             scene,
             solver,
             corrector,
+            health: TrackHealth::default(),
         })
     }
 
@@ -99,7 +106,10 @@ impl Tracker {
             let clock = Instant::now();
             let views = inputs.views();
             let dt = self.solver.config().dt;
-            report.correction = Some(corrector.correct(&mut self.scene.world, &views, dt)?);
+            let stats = corrector.correct(&mut self.scene.world, &views, dt)?;
+            let time = self.scene.world.time;
+            report.track_events = self.health.update(time, &stats.agreement);
+            report.correction = Some(stats);
             report.cameras_used = views.len();
             report.correct_ms = clock.elapsed().as_secs_f64() * 1e3;
         }
@@ -153,6 +163,11 @@ impl Tracker {
     /// The world's clock: when the last tick ended, s.
     pub fn time(&self) -> f64 {
         self.scene.world.time
+    }
+
+    /// Which objects are lost, and their newest silhouette agreement.
+    pub fn health(&self) -> &TrackHealth {
+        &self.health
     }
 
     /// The robot and the joint trajectory it followed in the last tick.

@@ -767,15 +767,16 @@ def set_stamp_clock(msg, t: float):
 def test_the_robot_comes_from_robot_description_and_stands_where_tf_puts_its_base(recording, ros):
     """robot_state_publisher offers the URDF on /robot_description (transient local) and the rig's
     calibration puts the robot's root link in the tf tree: with robot.description_topic set and no
-    URDF file, the node waits for the description (start-up diagnostics name it), builds the arm
-    from it, and places its base from tf world -> panda_link0 rather than from the configured
-    base_position (0.5 m off here); the pushed box is then tracked as with the true base."""
+    URDF file, the node waits for the description, and with robot.base_frame named for its tf
+    (start-up diagnostics name both), builds the arm from it, and places its base from tf
+    world -> panda_link0 rather than from the configured base_position (0.5 m off here); the
+    pushed box is then tracked as with the true base."""
     from geometry_msgs.msg import TransformStamped
     from std_msgs.msg import String
     config = recording / "description.yaml"
     config.write_text(
-        "pegs:\n  ros__parameters:\n    robot: {description_topic: /robot_description, base_position: [0.0, 0.0, 0.5]}\n"
-        "    node: {cameras: [cam0, cam1, cam2]}\n"
+        "pegs:\n  ros__parameters:\n    robot: {description_topic: /robot_description, base_frame: panda_link0, base_position: [0.0, 0.0, 0.5]}\n"
+        "    node: {cameras: [cam0, cam1, cam2], camera_wait: 30.0}\n"
         "    scene:\n      rgbd_objects: [{name: box, label: 1, mass: 0.36, particle_radius: 0.005}]\n"
         "      ground_from_depth: true\n")
     node = rclpy.create_node("pegs_test_description")
@@ -791,13 +792,15 @@ def test_the_robot_comes_from_robot_description_and_stands_where_tf_puts_its_bas
     spin_for(node, 2.0, player)
     waiting = [m for _, m in recorder.got.get("diagnostics", [])]
     assert recorder.count("objects") == 0, "tracking started without the robot's description"
+    description = node.create_publisher(String, "/robot_description", LATCHED)
+    description.publish(String(data=(ROOT / "urdf" / "panda_pusher.urdf").read_text()))
+    spin_for(node, 1.5)
+    waiting += [m for _, m in recorder.got.get("diagnostics", [])][len(waiting):]
+    assert recorder.count("objects") == 0, "tracking started without the named base frame's tf"
     base = TransformStamped()
     base.header.frame_id, base.child_frame_id = "world", "panda_link0"
     base.transform.rotation.w = 1.0
     node.create_publisher(TFMessage, "/tf_static", LATCHED).publish(TFMessage(transforms=[base]))
-    spin_for(node, 0.5)  # the calibration is up before the robot's driver
-    description = node.create_publisher(String, "/robot_description", LATCHED)
-    description.publish(String(data=(ROOT / "urdf" / "panda_pusher.urdf").read_text()))
     player.cursor = 0
     player.begin(time.time() + 0.5)
     spin_for(node, RUN_SECONDS + 0.5, player)
@@ -805,6 +808,7 @@ def test_the_robot_comes_from_robot_description_and_stands_where_tf_puts_its_bas
     node.destroy_node()
     text = log.read_text()
     assert any("robot_description on /robot_description" in s.message for m in waiting for s in m.status), "start-up diagnostics name the description"
+    assert any("tf world -> panda_link0 (robot base)" in s.message for m in waiting for s in m.status), "start-up diagnostics name the base tf"
     assert "robot base from tf world -> panda_link0: position [0.0, 0.0, 0.0]" in text, text
     robot = [s for _, m in recorder.got["diagnostics"] for s in m.status if s.name == "pegs: robot"]
     assert robot and level(robot[-1]) == 0, robot[-1].message if robot else "no robot status: tracking never ran"
