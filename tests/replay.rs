@@ -626,13 +626,14 @@ fn a_replay_reports_an_object_it_lost_and_nothing_when_it_tracks() {
         "1.5",
     ]);
     let (rec, cfg) = (scn.join("recording"), scn.join("config.yaml"));
-    let tracked = replay(&rec, &cfg, &scratch("lost-tracked"), &[]);
+    let (tracked_out, far_out) = (scratch("lost-tracked"), scratch("lost-far"));
+    let tracked = replay(&rec, &cfg, &tracked_out, &[]);
     assert_eq!(tracked["track_events"], serde_json::json!([]), "{tracked}");
     let mut config = pegs::config::Config::load(&cfg).unwrap();
     config.scene.offset_position = glam::Vec3::new(0.0, 0.15, 0.0);
     let far_cfg = scn.join("far.yaml");
     std::fs::write(&far_cfg, config.to_yaml().unwrap()).unwrap();
-    let far = replay(&rec, &far_cfg, &scratch("lost-far"), &[]);
+    let far = replay(&rec, &far_cfg, &far_out, &[]);
     let events = far["track_events"].as_array().unwrap();
     assert!(!events.is_empty(), "{far}");
     assert_eq!(events[0]["object"], "box");
@@ -643,4 +644,22 @@ fn a_replay_reports_an_object_it_lost_and_nothing_when_it_tracks() {
         said.filter_map(|w| w.as_str())
             .any(|w| w.contains("object box: lost at"))
     );
+    // health.csv: every tick's agreement, high while tracked, and the lost flag at the end.
+    let rows = |dir: &Path| -> Vec<(f64, bool)> {
+        let text = std::fs::read_to_string(dir.join("health.csv")).unwrap();
+        let row = |l: &str| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[2].parse().unwrap_or(f64::NAN), f[3] == "1")
+        };
+        text.lines().skip(1).map(row).collect()
+    };
+    let tracked = rows(&tracked_out);
+    let agreement: Vec<f64> = tracked
+        .iter()
+        .map(|r| r.0)
+        .filter(|a| a.is_finite())
+        .collect();
+    assert!(agreement.len() > 30, "{} ticks measured", agreement.len());
+    assert!(agreement.iter().all(|a| *a > 0.6), "{agreement:?}");
+    assert!(rows(&far_out).last().unwrap().1, "lost at the end");
 }

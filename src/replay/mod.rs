@@ -246,6 +246,8 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         indicatif::ProgressBar::hidden()
     };
     let clock = std::time::Instant::now();
+    // Each tick's silhouette agreement per object, and whether it is lost (`health.csv`).
+    let mut health = String::from("t,object,agreement,lost\n");
     for index in 1..=ticks {
         let inputs = feed.tick(t0 + index as f64 * dt, &config, &mut metrics);
         let report = tracker.tick(&inputs)?;
@@ -270,6 +272,21 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
                 agreement,
             });
         }
+        let world = tracker.world();
+        for shape in world.shapes.dynamic_ids() {
+            let h = tracker.health();
+            let a = report
+                .correction
+                .as_ref()
+                .and_then(|c| c.agreement.get(shape as usize));
+            let a = a
+                .copied()
+                .flatten()
+                .map_or(String::new(), |a| format!("{a:.3}"));
+            let name = &world.shapes.name[shape as usize];
+            let lost = h.is_lost(shape) as u8;
+            health.push_str(&format!("{:.6},{name},{a},{lost}\n", report.time - t0));
+        }
         let tick = Tick {
             index,
             tracker: &tracker,
@@ -284,6 +301,7 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     metrics.ticks = ticks;
     metrics.seconds = ticks as f64 * dt;
     feed.finish(&mut metrics);
+    std::fs::write(out.join("health.csv"), health)?;
     observers.finish(out, &mut metrics)?;
     std::fs::write(
         out.join("metrics.json"),

@@ -376,6 +376,10 @@ def test_a_camera_that_stops_is_reported_and_tracking_continues(main_run):
     status = last_diagnostics(main_run)
     assert level(status["pegs: camera cam2"]) == 2 and "stopped publishing" in status["pegs: camera cam2"].message
     assert level(status["pegs: camera cam0"]) in (0, 1)
+    # The tracked box's own status: tracked, its silhouette agreeing with the images.
+    box = status["pegs: object box"]
+    agreement = {kv.key: kv.value for kv in box.values}["silhouette_agreement"]
+    assert level(box) == 0 and float(agreement) > 0.6, (box.message, agreement)
     # The ages of the images the ticks used are reported, and none is past the limit (70 ms).
     ages = {kv.key: kv.value for kv in status["pegs: camera cam0"].values}
     assert int(ages["ticks_used"]) > 0 and 0 < float(ages["age_used_ms_max"]) <= 70.0, ages
@@ -787,23 +791,27 @@ def test_the_robot_comes_from_robot_description_and_stands_where_tf_puts_its_bas
     with open(log, "w") as out:
         proc = subprocess.Popen([PEGS, "node", "--config", str(config), "--stats", str(stats_path)], env=env, stdout=out, stderr=subprocess.STDOUT)
     player = Player(node, str(recording / "recording"))
+    # Publishers made now, so that they are discovered before they publish.
+    description = node.create_publisher(String, "/robot_description", LATCHED)
+    base_pub = node.create_publisher(TFMessage, "/tf_static", LATCHED)
     wait_for_discovery(node, player)
     player.begin(time.time() + 0.2)
     spin_for(node, 2.0, player)
     waiting = [m for _, m in recorder.got.get("diagnostics", [])]
     assert recorder.count("objects") == 0, "tracking started without the robot's description"
-    description = node.create_publisher(String, "/robot_description", LATCHED)
     description.publish(String(data=(ROOT / "urdf" / "panda_pusher.urdf").read_text()))
     spin_for(node, 1.5)
     waiting += [m for _, m in recorder.got.get("diagnostics", [])][len(waiting):]
     assert recorder.count("objects") == 0, "tracking started without the named base frame's tf"
+    # The recording again from its start; the base's tf once its first frames are in.
+    player.cursor = 0
+    player.begin(time.time() + 0.2)
+    spin_for(node, 0.8, player)
     base = TransformStamped()
     base.header.frame_id, base.child_frame_id = "world", "panda_link0"
     base.transform.rotation.w = 1.0
-    node.create_publisher(TFMessage, "/tf_static", LATCHED).publish(TFMessage(transforms=[base]))
-    player.cursor = 0
-    player.begin(time.time() + 0.5)
-    spin_for(node, RUN_SECONDS + 0.5, player)
+    base_pub.publish(TFMessage(transforms=[base]))
+    spin_for(node, RUN_SECONDS - 0.3, player)
     stop_node(proc, stats_path)
     node.destroy_node()
     text = log.read_text()
