@@ -1,6 +1,8 @@
 //! Silhouette agreement: whether the camera still sees each tracked object where the model puts
 //! it. Among an object's Gaussians whose centre the model renders as their own surface (not hidden
-//! behind the robot or another object), the share whose observed pixel shows that surface too.
+//! behind the robot or another object), the share whose observed pixel looks more like that
+//! surface than like the static scene behind it (a relative test, so a camera's colour response
+//! that differs from the model's does not read as disagreement).
 //! Near 1 while tracking holds; near 0 once the rendered object no longer overlaps the observed one
 //! (the photometric gradient is then gone too) or something unmodelled covers it.
 //!
@@ -17,7 +19,8 @@ pub const SURFACE_THRESHOLD: f32 = 0.1;
 pub const MIN_VISIBLE: usize = 8;
 
 /// Per shape: the agreement in `camera` (None where the object shows fewer than `MIN_VISIBLE`
-/// Gaussians in `window`). `rendered` and `observed` are the window's pixels, row-major.
+/// Gaussians in `window`). `rendered` (the whole model), `background` (the static scene alone) and
+/// `observed` are the window's pixels, row-major.
 pub fn silhouette_agreement(
     world: &World,
     cloud: &GaussianCloud,
@@ -25,6 +28,7 @@ pub fn silhouette_agreement(
     camera: &Camera,
     window: Roi,
     rendered: &[Vec3],
+    background: &[Vec3],
     observed: &[Vec3],
 ) -> Vec<Option<f32>> {
     let mut seen = vec![(0usize, 0usize); world.shapes.len()];
@@ -43,7 +47,9 @@ pub fn silhouette_agreement(
             continue;
         }
         let k = (y as u32 - window.y0) as usize * width as usize + (x as u32 - window.x0) as usize;
-        let (Some(model), Some(image)) = (rendered.get(k), observed.get(k)) else {
+        let (Some(model), Some(image), Some(behind)) =
+            (rendered.get(k), observed.get(k), background.get(k))
+        else {
             continue;
         };
         if !same_surface(*model, cloud.colour[i], SURFACE_THRESHOLD) {
@@ -51,7 +57,7 @@ pub fn silhouette_agreement(
         }
         let shape = world.particles.shape[world.gaussians.parent[i] as usize] as usize;
         seen[shape].0 += 1;
-        seen[shape].1 += same_surface(*image, *model, SURFACE_THRESHOLD) as usize;
+        seen[shape].1 += (image.distance(*model) < image.distance(*behind)) as usize;
     }
     seen.iter()
         .map(|&(visible, matched)| {

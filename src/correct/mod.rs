@@ -356,6 +356,15 @@ impl Corrector {
                 if window.pixels() == 0 {
                     continue;
                 }
+                // The static scene alone, for the silhouette agreement of the tick's first view
+                // (rendered before the view: the renderer keeps the last forward for backward).
+                let behind = match it == 0 && j == 0 {
+                    true => {
+                        let width = view.camera.width;
+                        Some(crop(self.background(world, &view.camera)?, width, *window))
+                    }
+                    false => None,
+                };
                 let out = self.renderer.forward(&cloud, &view.camera, *window)?;
                 lap(&mut stats, "forward", &mut clock);
                 let scale = 1.0 / (3.0 * window.pixels() as f32);
@@ -368,7 +377,7 @@ impl Corrector {
                     .sum::<f32>()
                     * scale;
                 loss += camera_loss;
-                if it == 0 && j == 0 {
+                if let Some(behind) = &behind {
                     stats.agreement = agreement::silhouette_agreement(
                         world,
                         &cloud,
@@ -376,6 +385,7 @@ impl Corrector {
                         &view.camera,
                         *window,
                         &out.colour,
+                        behind,
                         target,
                     );
                 }
