@@ -18,19 +18,27 @@ pub const SURFACE_THRESHOLD: f32 = 0.1;
 /// Fewer visible Gaussians than this say nothing about an object.
 pub const MIN_VISIBLE: usize = 8;
 
+/// A window's pixels, row-major: the whole model rendered, the static scene alone, the image.
+pub struct WindowPixels<'a> {
+    pub rendered: &'a [Vec3],
+    pub background: &'a [Vec3],
+    pub observed: &'a [Vec3],
+}
+
 /// Per shape: the agreement in `camera` (None where the object shows fewer than `MIN_VISIBLE`
-/// Gaussians in `window`). `rendered` (the whole model), `background` (the static scene alone) and
-/// `observed` are the window's pixels, row-major.
+/// Gaussians in `window`).
 pub fn silhouette_agreement(
     world: &World,
     cloud: &GaussianCloud,
     free: &[usize],
-    camera: &Camera,
-    window: Roi,
-    rendered: &[Vec3],
-    background: &[Vec3],
-    observed: &[Vec3],
+    (camera, window): (&Camera, Roi),
+    pixels: &WindowPixels,
 ) -> Vec<Option<f32>> {
+    let WindowPixels {
+        rendered,
+        background,
+        observed,
+    } = pixels;
     let mut seen = vec![(0usize, 0usize); world.shapes.len()];
     let width = window.x1 - window.x0;
     for &i in free {

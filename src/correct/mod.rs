@@ -382,11 +382,12 @@ impl Corrector {
                         world,
                         &cloud,
                         &free,
-                        &view.camera,
-                        *window,
-                        &out.colour,
-                        behind,
-                        target,
+                        (&view.camera, *window),
+                        &agreement::WindowPixels {
+                            rendered: &out.colour,
+                            background: behind,
+                            observed: target,
+                        },
                     );
                 }
                 if !rendered[v] {
