@@ -23,6 +23,23 @@ fn scratch(name: &str) -> PathBuf {
     d
 }
 
+/// `pegs scenario generate NAME` into `dir` at 160x90 for `seconds`.
+fn generate_small(name: &str, dir: &Path, seconds: &str) {
+    pegs(&[
+        "scenario",
+        "generate",
+        name,
+        "--out",
+        dir.to_str().unwrap(),
+        "--width",
+        "160",
+        "--height",
+        "90",
+        "--seconds",
+        seconds,
+    ]);
+}
+
 fn metrics(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap()
 }
@@ -104,19 +121,7 @@ fn generated_recording_replays_deterministically_and_visual_forces_beat_physics_
 #[test]
 fn a_truncated_recording_replays_what_it_holds_and_says_so() {
     let scn = scratch("trunc");
-    pegs(&[
-        "scenario",
-        "generate",
-        "resting_box",
-        "--out",
-        scn.to_str().unwrap(),
-        "--width",
-        "160",
-        "--height",
-        "90",
-        "--seconds",
-        "1.5",
-    ]);
+    generate_small("resting_box", &scn, "1.5");
     let bytes = std::fs::read(scn.join("recording/recording_0.mcap")).unwrap();
     let cut = scn.join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
@@ -139,19 +144,7 @@ fn a_truncated_recording_replays_what_it_holds_and_says_so() {
 #[test]
 fn replay_without_a_scene_is_a_clear_error() {
     let scn = scratch("noscene");
-    pegs(&[
-        "scenario",
-        "generate",
-        "resting_box",
-        "--out",
-        scn.to_str().unwrap(),
-        "--width",
-        "160",
-        "--height",
-        "90",
-        "--seconds",
-        "0.2",
-    ]);
+    generate_small("resting_box", &scn, "0.2");
     std::fs::write(scn.join("empty.yaml"), "pegs:\n  ros__parameters: {}\n").unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_pegs"))
         .args([
@@ -176,19 +169,7 @@ fn replay_without_a_scene_is_a_clear_error() {
 fn a_camera_that_stops_publishing_drops_out_and_is_reported() {
     // Rewrite a recording without cam1's images after 0.5 s.
     let scn = scratch("stop");
-    pegs(&[
-        "scenario",
-        "generate",
-        "resting_box",
-        "--out",
-        scn.to_str().unwrap(),
-        "--width",
-        "160",
-        "--height",
-        "90",
-        "--seconds",
-        "1.5",
-    ]);
+    generate_small("resting_box", &scn, "1.5");
     let (messages, problem) = pegs::record::read_messages(&scn.join("recording")).unwrap();
     assert!(problem.is_none());
     let cut = scn.join("cam1_stops.mcap");
@@ -234,19 +215,7 @@ fn a_camera_that_stops_publishing_drops_out_and_is_reported() {
 #[test]
 fn a_rope_is_measured_against_its_true_particles_and_fewer_cameras_can_be_chosen() {
     let scn = scratch("rope");
-    pegs(&[
-        "scenario",
-        "generate",
-        "dragged_rope",
-        "--out",
-        scn.to_str().unwrap(),
-        "--width",
-        "160",
-        "--height",
-        "90",
-        "--seconds",
-        "1",
-    ]);
+    generate_small("dragged_rope", &scn, "1");
     let truth = std::fs::read_to_string(scn.join("ground_truth_particles.csv")).unwrap();
     assert_eq!(truth.lines().next(), Some("t,object,particle,x,y,z"));
     assert_eq!(
@@ -503,19 +472,7 @@ fn bag_info_names_what_a_replay_would_use_and_what_is_missing() {
 fn a_recorded_robot_description_and_base_tf_build_the_robot_as_the_rig_had_it() {
     use pegs::msgs::{self, Header, Quaternion, TfMessage, Time, Transform, TransformStamped};
     let scn = scratch("description");
-    pegs(&[
-        "scenario",
-        "generate",
-        "pushed_box",
-        "--out",
-        scn.to_str().unwrap(),
-        "--width",
-        "160",
-        "--height",
-        "90",
-        "--seconds",
-        "2.5",
-    ]);
+    generate_small("pushed_box", &scn, "2.5");
     let (messages, problem) = pegs::record::read_messages(&scn.join("recording")).unwrap();
     assert!(problem.is_none());
     let rig = scn.join("rig.mcap");
@@ -612,19 +569,7 @@ fn a_recorded_robot_description_and_base_tf_build_the_robot_as_the_rig_had_it() 
 #[test]
 fn a_replay_reports_an_object_it_lost_and_nothing_when_it_tracks() {
     let scn = scratch("lost");
-    pegs(&[
-        "scenario",
-        "generate",
-        "resting_box",
-        "--out",
-        scn.to_str().unwrap(),
-        "--width",
-        "160",
-        "--height",
-        "90",
-        "--seconds",
-        "1.5",
-    ]);
+    generate_small("resting_box", &scn, "1.5");
     let (rec, cfg) = (scn.join("recording"), scn.join("config.yaml"));
     let (tracked_out, far_out) = (scratch("lost-tracked"), scratch("lost-far"));
     let tracked = replay(&rec, &cfg, &tracked_out, &[]);

@@ -254,6 +254,20 @@ def truth_at(track, t):
     return min(track, key=lambda r: abs(r[0] - t))
 
 
+def box_errors(objects, player, recording: Path, until: float = RUN_SECONDS):
+    """Distances (m) of the tracked box from the ground truth, for (receive time, message) pairs
+    whose recording time lies in [1 s, until]."""
+    track = ground_truth(recording)
+    errors = []
+    for _, msg in objects:
+        t = player.recording_time(stamp_of(msg))
+        if 1.0 <= t <= until:
+            (box,) = [o for o in msg.objects if o.name == "box"]
+            _, x, y, z = truth_at(track, t)
+            errors.append(math.dist((box.pose.position.x, box.pose.position.y, box.pose.position.z), (x, y, z)))
+    return errors
+
+
 def level(status) -> int:
     """diagnostic_msgs levels are `byte`: rclpy gives bytes."""
     return status.level[0] if isinstance(status.level, bytes) else int(status.level)
@@ -306,16 +320,7 @@ def test_the_tick_clock_keeps_its_rate_and_every_tick_is_published(main_run):
 
 def test_tracked_box_follows_the_ground_truth(main_run, recording):
     track = ground_truth(recording)
-    player, start = main_run["player"], main_run["start"]
-    errors = []
-    for _, msg in main_run["recorder"].got["objects"]:
-        t = player.recording_time(stamp_of(msg))
-        if not 1.0 <= t <= RUN_SECONDS:
-            continue
-        (box,) = [o for o in msg.objects if o.name == "box"]
-        _, x, y, z = truth_at(track, t)
-        p = box.pose.position
-        errors.append(math.dist((p.x, p.y, p.z), (x, y, z)))
+    errors = box_errors(main_run["recorder"].got["objects"], main_run["player"], recording)
     assert len(errors) >= 8, f"{len(errors)} poses during the push"
     mean_mm = 1e3 * sum(errors) / len(errors)
     moved_mm = 1e3 * math.dist(track[0][1:], track[-1][1:])
@@ -748,14 +753,7 @@ def test_simulated_time_from_clock_drives_the_ticks(recording, ros):
     paused = [stamp_of(m) for w, m in received if wall0 + pause_at / rate + 0.2 <= w <= wall0 + pause_at / rate + pause_s]
     assert all(s <= sim0 + pause_at + 2 * dt for s in paused), f"ticks while /clock stood still: {paused}"
     # Tracking on simulated stamps: the box follows the ground truth.
-    track = ground_truth(recording)
-    errors = []
-    for _, msg in received:
-        t = player.recording_time(stamp_of(msg))
-        if 1.0 <= t <= played:
-            (box,) = [o for o in msg.objects if o.name == "box"]
-            _, x, y, z = truth_at(track, t)
-            errors.append(math.dist((box.pose.position.x, box.pose.position.y, box.pose.position.z), (x, y, z)))
+    errors = box_errors(received, player, recording, played)
     assert len(errors) >= 10 and sum(errors) / len(errors) < 0.015, f"{len(errors)} ticks, mean {1e3 * sum(errors) / max(len(errors), 1):.1f} mm"
     assert "the clock went back" in log, log
     after = [stamp_of(m) for w, m in recorder.got["objects"] if w > wall_back + 0.3]
@@ -820,14 +818,7 @@ def test_the_robot_comes_from_robot_description_and_stands_where_tf_puts_its_bas
     assert "robot base from tf world -> panda_link0: position [0.0, 0.0, 0.0]" in text, text
     robot = [s for _, m in recorder.got["diagnostics"] for s in m.status if s.name == "pegs: robot"]
     assert robot and level(robot[-1]) == 0, robot[-1].message if robot else "no robot status: tracking never ran"
-    track = ground_truth(recording)
-    errors = []
-    for _, msg in recorder.got["objects"]:
-        t = player.recording_time(stamp_of(msg))
-        if 1.0 <= t <= RUN_SECONDS:
-            (box,) = [o for o in msg.objects if o.name == "box"]
-            _, x, y, z = truth_at(track, t)
-            errors.append(math.dist((box.pose.position.x, box.pose.position.y, box.pose.position.z), (x, y, z)))
+    errors = box_errors(recorder.got["objects"], player, recording)
     mean_mm = 1e3 * sum(errors) / max(len(errors), 1)
     print(f"robot from /robot_description, base from tf: box tracked at {mean_mm:.1f} mm mean over {len(errors)} ticks")
     assert len(errors) >= 8 and mean_mm < 15.0, f"{len(errors)} ticks, {mean_mm:.1f} mm"
@@ -952,14 +943,7 @@ def test_cameras_are_posed_through_a_two_hop_tf_chain(recording, ros):
     node.destroy_node()
     log = (recording / "tf_chain.log").read_text()
     assert "tracking 1 object(s) with 3 camera(s)" in log, log
-    track = ground_truth(recording)
-    errors = []
-    for _, msg in recorder.got["objects"]:
-        t = player.recording_time(stamp_of(msg))
-        if 1.0 <= t <= RUN_SECONDS:
-            (box,) = [o for o in msg.objects if o.name == "box"]
-            _, x, y, z = truth_at(track, t)
-            errors.append(math.dist((box.pose.position.x, box.pose.position.y, box.pose.position.z), (x, y, z)))
+    errors = box_errors(recorder.got["objects"], player, recording)
     mean_mm = 1e3 * sum(errors) / max(len(errors), 1)
     print(f"cameras through world -> link -> optical: box tracked at {mean_mm:.1f} mm mean over {len(errors)} ticks")
     assert len(errors) >= 8 and mean_mm < 15.0, f"{len(errors)} ticks, {mean_mm:.1f} mm"
