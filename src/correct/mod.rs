@@ -479,8 +479,13 @@ impl Corrector {
     }
 }
 
+/// Static-scene renders kept (`Corrector::background`): every fixed camera of a rig, while a camera
+/// that moves does not grow the cache without bound.
+const MAX_BACKGROUNDS: usize = 16;
+
 impl Corrector {
-    /// The static scene (Gaussians without a parent) rendered into `camera`, cached per camera.
+    /// The static scene (Gaussians without a parent) rendered into `camera`, cached per camera
+    /// (the newest `MAX_BACKGROUNDS` poses).
     fn background(&mut self, world: &World, camera: &Camera) -> Result<&[Vec3]> {
         let k = match self.backgrounds.iter().position(|(c, _)| c == camera) {
             Some(k) => k,
@@ -490,6 +495,10 @@ impl Corrector {
                     camera,
                     Roi::full(camera),
                 )?;
+                // A camera moved by tf has a new pose every tick: keep only the newest renders.
+                if self.backgrounds.len() >= MAX_BACKGROUNDS {
+                    self.backgrounds.remove(0);
+                }
                 self.backgrounds.push((*camera, out.colour));
                 self.backgrounds.len() - 1
             }
@@ -862,5 +871,19 @@ mod tests {
             pushed > 1e-3 && kept < 0.2 * pushed,
             "force with the arm in the loss {pushed} N, without {kept} N"
         );
+    }
+
+    /// A camera whose pose changes every tick (hung from a tf-moved frame) renders its static
+    /// scene anew each time but does not make the cache grow without bound.
+    #[test]
+    fn a_moving_camera_does_not_grow_the_background_cache() {
+        let world = crate::scene::tabletop().unwrap().world;
+        let mut c = Corrector::new(CorrectConfig::default(), RenderSettings::default()).unwrap();
+        for k in 0..40 {
+            let eye = Vec3::new(1.0, 0.01 * k as f32, 0.6);
+            let camera = Camera::look_at(16, 9, 30.0, eye, Vec3::ZERO);
+            assert_eq!(c.background(&world, &camera).unwrap().len(), 16 * 9);
+        }
+        assert_eq!(c.backgrounds.len(), MAX_BACKGROUNDS);
     }
 }
