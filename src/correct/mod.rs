@@ -877,7 +877,7 @@ mod tests {
     /// scene anew each time but does not make the cache grow without bound.
     #[test]
     fn a_moving_camera_does_not_grow_the_background_cache() {
-        let world = crate::scene::tabletop().unwrap().world;
+        let world = crate::world::WorldBuilder::new().build();
         let mut c = Corrector::new(CorrectConfig::default(), RenderSettings::default()).unwrap();
         for k in 0..40 {
             let eye = Vec3::new(1.0, 0.01 * k as f32, 0.6);
