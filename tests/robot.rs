@@ -214,21 +214,28 @@ fn every_link_gets_particles_that_stay_on_their_link_under_motion() {
     assert_eq!(robot.link_shapes.len(), with_geometry);
     for &(li, s) in &robot.link_shapes {
         let n = world.shapes.range(s).len();
-        assert!(n > 10, "link {} got {n} particles", model.links[li].name);
-        // Every particle lies on its link's collision surface (body frame = link frame).
+        assert!(n >= 4, "link {} got {n} particles", model.links[li].name);
+        // Every particle's sphere touches one of its link's collision shapes from inside (body
+        // frame = link frame): the particle lies a radius in from that shape's surface.
+        let radius = RobotConfig::default().particle_radius as f64;
         for i in world.shapes.range(s) {
             let p = world.particles.rest[i].as_dvec3();
-            let d = model.links[li]
+            let off = model.links[li]
                 .geometry
                 .iter()
                 .map(|g| {
-                    pegs::robot::sampling::distance_to_surface(
+                    let d = pegs::robot::sampling::distance_to_surface(
                         &g.shape,
                         g.origin.inverse().transform_point3(p),
-                    )
+                    );
+                    (d - radius).abs()
                 })
                 .fold(f64::INFINITY, f64::min);
-            assert!(d < 1e-5, "particle {d} m off link {}", model.links[li].name);
+            assert!(
+                off < 1e-5,
+                "particle {off} m from a radius in from link {}'s surface",
+                model.links[li].name
+            );
         }
         // Gaussians take the URDF material colour.
         let gi = world

@@ -7,7 +7,7 @@ use pegs::config::Config;
 use pegs::inputs::TickInputs;
 use pegs::math::Pose;
 use pegs::scenario;
-use pegs::tracker::Tracker;
+use pegs::tracker::{Change, Tracker};
 
 /// Track `name` for `ticks` with the model started `offset` away; per-tick errors (m), averaged
 /// over the scenario's objects.
@@ -275,8 +275,13 @@ fn a_box_hidden_behind_the_arm_is_recovered_after_it_reappears() {
     );
 }
 
-/// Track `name` from `offset` for `ticks`: the lost/found events and the box's agreement per tick.
-fn health_of(name: &str, offset: Pose, ticks: u64) -> (Vec<pegs::tracker::TrackEvent>, Vec<f32>) {
+/// Track `name` from `offset` for `ticks`: the tracker's events, the box's agreement per tick and
+/// its distance from the truth at the end (m).
+fn health_of(
+    name: &str,
+    offset: Pose,
+    ticks: u64,
+) -> (Vec<pegs::tracker::TrackEvent>, Vec<f32>, f32) {
     let cameras = scenario::cameras(name, 320, 180);
     let truth_config = scenario::truth_config(name);
     let mut truth = Tracker::new(
@@ -307,16 +312,22 @@ fn health_of(name: &str, offset: Pose, ticks: u64) -> (Vec<pegs::tracker::TrackE
                 .filter(|_| report.correction.is_some()),
         );
     }
-    (events, agreement)
+    let error = model
+        .world()
+        .shape_centroid(shape)
+        .distance(truth.world().shape_centroid(shape));
+    (events, agreement, error)
 }
 
-/// Lost-track detection. Started 1 cm / 5 deg off, the pushed box is tracked: its silhouette
-/// agreement stays high and it is never reported lost. Started 15 cm off, the model's box no
-/// longer overlaps the real one (no photometric gradient reaches it): reported lost within half a
-/// second, and not found again.
+/// Lost-track detection and re-acquisition. Started 1 cm / 5 deg off, the pushed box is tracked:
+/// its silhouette agreement stays high and nothing is reported. Started 15 cm off, the model's box
+/// no longer overlaps the real one (no photometric gradient reaches it): it is found in the images
+/// within a third of a second, moved there with an event that says so, and tracked from there.
+/// Started 40 cm off, beyond where the search looks, it is reported lost within half a second and
+/// not found again.
 #[test]
-fn a_model_that_no_longer_overlaps_its_object_is_reported_lost_and_a_tracked_one_never_is() {
-    let (events, agreement) = health_of("pushed_box", small_offset(), 90);
+fn a_model_that_no_longer_overlaps_its_object_relocates_it_or_reports_it_lost() {
+    let (events, agreement, _) = health_of("pushed_box", small_offset(), 90);
     let low = agreement.iter().copied().fold(1.0f32, f32::min);
     eprintln!(
         "tracked: agreement mean {:.2}, lowest {low:.2}; events {events:?}",
@@ -325,13 +336,20 @@ fn a_model_that_no_longer_overlaps_its_object_is_reported_lost_and_a_tracked_one
     assert!(events.is_empty(), "{events:?}");
     assert!(mean(&agreement) > 0.8, "{agreement:?}");
     let far = Pose::new(Vec3::new(0.0, 0.15, 0.0), Quat::IDENTITY);
-    let (events, agreement) = health_of("pushed_box", far, 30);
-    eprintln!(
-        "15 cm off: agreement mean {:.2}; events {events:?}",
-        mean(&agreement)
-    );
+    let (events, _, error) = health_of("pushed_box", far, 45);
+    eprintln!("15 cm off: {error} m at the end; events {events:?}");
+    let jump = match events.first().map(|e| (e.time, e.change)) {
+        Some((t, Change::Relocated { jump_m, .. })) if t < 1.0 / 3.0 => jump_m,
+        _ => panic!("not relocated within a third of a second: {events:?}"),
+    };
+    assert!((jump - 0.15).abs() < 0.02, "jumped {jump} m");
+    assert!(error < 0.005, "{error} m from the truth after relocation");
+    assert!(!events.iter().any(|e| e.lost()), "{events:?}");
+    let beyond = Pose::new(Vec3::new(0.0, 0.4, 0.0), Quat::IDENTITY);
+    let (events, _, _) = health_of("pushed_box", beyond, 30);
+    eprintln!("40 cm off: events {events:?}");
     assert!(
-        !events.is_empty() && events[0].lost && events[0].time < 0.5,
+        !events.is_empty() && events[0].lost() && events[0].time < 0.5,
         "{events:?}"
     );
     assert_eq!(events.len(), 1, "lost once, not found again: {events:?}");

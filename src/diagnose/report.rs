@@ -70,6 +70,10 @@ pub struct ObjectReport {
     /// Windows where predictions missed but no candidate effect explains it (contact transients,
     /// tracking noise): listed, not counted as missing physics.
     pub unexplained: Vec<Mismatch>,
+    /// Times the tracker found the object in the images away from where the model had it and
+    /// moved it there: something outside the model moved it. Predictions across them are left
+    /// out of locating and fitting.
+    pub relocated: Vec<crate::trace::Jump>,
     /// Short-horizon error a prediction had to exceed to count as a mismatch, mm.
     pub locate_threshold_mm: f32,
     /// For an object with no effect of its own: the effects named on other objects that explain
@@ -144,6 +148,7 @@ impl Report {
         let mut md = format!("# Diagnosis of {}\n\n", self.recording);
         for o in &self.objects {
             let _ = writeln!(md, "## {}\n", o.object);
+            relocated_section(&mut md, o);
             locate_section(&mut md, o);
             driven_section(&mut md, o);
             name_section(&mut md, o);
@@ -160,6 +165,23 @@ fn window_cells(m: &Mismatch) -> String {
         "| {:.2} | {:.2} | {:.3} .. {:.3} | {:.3} .. {:.3} |",
         m.t_start, m.t_end, m.region_min[0], m.region_max[0], m.region_min[1], m.region_max[1]
     )
+}
+
+/// Jumps the tracker made: motion from outside the model, said and left out of the fits.
+fn relocated_section(md: &mut String, o: &ObjectReport) {
+    if o.relocated.is_empty() {
+        return;
+    }
+    let said: Vec<String> = o
+        .relocated
+        .iter()
+        .map(|j| format!("{:.2} s ({:.0} mm)", j.time, j.jump_m * 1e3))
+        .collect();
+    let _ = writeln!(
+        md,
+        "**Moved by something outside the model.** The tracker lost the object and found it in the images away from where the model had it, at {}; predictions across these jumps are left out of locating and fitting.\n",
+        said.join(", ")
+    );
 }
 
 /// Where short open-loop predictions miss, and what explains it.

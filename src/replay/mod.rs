@@ -101,18 +101,20 @@ pub struct Metrics {
     /// the residuals, for the diagnosis.
     #[serde(skip)]
     pub trace: Option<Trace>,
-    /// Objects lost (their silhouettes stopped agreeing with the images) and found again, in
-    /// order (`tracker::health`); also said in `warnings`.
+    /// Objects lost (their silhouettes stopped agreeing with the images), found again and
+    /// relocated (moved to where the images show them), in order (`tracker::health`); also said
+    /// in `warnings`.
     pub track_events: Vec<ObjectEvent>,
 }
 
-/// A tracked object lost or found again.
+/// A tracked object lost, found again or relocated.
 #[derive(Clone, Debug, Serialize)]
 pub struct ObjectEvent {
     pub object: String,
     /// Seconds after the replay's start.
     pub at_s: f64,
-    pub lost: bool,
+    #[serde(flatten)]
+    pub change: crate::tracker::Change,
     /// The silhouette agreement that decided it.
     pub agreement: f32,
 }
@@ -254,22 +256,14 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
         for e in &report.track_events {
             let object = tracker.world().shapes.name[e.shape as usize].clone();
             let at_s = e.time - t0;
-            let line = match e.lost {
-                true => format!(
-                    "object {object}: lost at {at_s:.2} s (silhouette agreement {:.2}: the model no \
-                     longer overlaps what the cameras see)",
-                    e.agreement
-                ),
-                false => format!("object {object}: found again at {at_s:.2} s"),
-            };
+            let line = e.describe(&object, at_s);
             eprintln!("warning: {line}");
             metrics.warnings.push(line);
-            let (lost, agreement) = (e.lost, e.agreement);
             metrics.track_events.push(ObjectEvent {
                 object,
                 at_s,
-                lost,
-                agreement,
+                change: e.change,
+                agreement: e.agreement,
             });
         }
         let world = tracker.world();

@@ -4,7 +4,9 @@
 //! distance of its particles from where the true pose puts them; a deformable one's, of particle k
 //! from true particle k. Objects built from RGB-D have a body frame of their own: their error is
 //! measured after registering it to the true body frame at the start (so it is the drift of the
-//! tracking).
+//! tracking), and up to the turns about the vertical that leave its shape as it was (a cylinder's
+//! any turn, a box's half turn): such a turn cannot be seen, so the images cannot correct it and
+//! it is no tracking error (`symmetric_turns`).
 
 use super::ErrorStats;
 use crate::math::Pose;
@@ -23,6 +25,8 @@ pub struct TruthError {
     /// Objects built from RGB-D: the true body frame's pose in the tracked body frame.
     registered: Vec<String>,
     registration: BTreeMap<String, Pose>,
+    /// Registered objects: the body-frame turns that leave their shape as it was (identity first).
+    symmetries: BTreeMap<String, Vec<Pose>>,
     pub series: ErrorSeries,
 }
 
@@ -41,6 +45,7 @@ impl TruthError {
             },
             registered,
             registration: BTreeMap::new(),
+            symmetries: BTreeMap::new(),
             series: ErrorSeries::new(),
         }))
     }
@@ -73,8 +78,17 @@ impl Observer for TruthError {
             if let (Some(track), Some(s)) = (self.poses.get(name), world.shape_id(name))
                 && let Some((_, first)) = track.first()
             {
-                let registration = first.inverse().mul(&world.shapes.pose[s as usize]);
+                let pose = world.shapes.pose[s as usize];
+                let registration = first.inverse().mul(&pose);
                 self.registration.insert(name.clone(), registration);
+                let rest: Vec<Vec3> = world
+                    .shapes
+                    .range(s)
+                    .map(|i| world.particles.rest[i])
+                    .collect();
+                let vertical = pose.rotation.inverse() * Vec3::Z;
+                self.symmetries
+                    .insert(name.clone(), symmetric_turns(&rest, vertical));
             }
         }
         Ok(())
@@ -107,18 +121,88 @@ impl Observer for TruthError {
                 None => truth,
             };
             let n = range.len() as f32;
-            let e = range
-                .map(|p| {
-                    pose.transform_point(w.particles.rest[p])
-                        .distance(w.particles.position[p])
+            let identity = [Pose::default()];
+            let turns = self.symmetries.get(name).map_or(&identity[..], |v| &v[..]);
+            let e = turns
+                .iter()
+                .map(|turn| {
+                    let pose = pose.mul(turn);
+                    range
+                        .clone()
+                        .map(|p| {
+                            pose.transform_point(w.particles.rest[p])
+                                .distance(w.particles.position[p])
+                        })
+                        .sum::<f32>()
+                        / n
                 })
-                .sum::<f32>()
-                / n;
+                .fold(f32::INFINITY, f32::min);
             self.series.entry(name.clone()).or_default().push((t, e));
         }
         Ok(())
     }
 }
+
+/// Turns (body frame, about `axis` through the points' centroid, every 5 degrees) under which
+/// `points` stay where the shape was: at least `SYMMETRY_SHARE` of them land within the points'
+/// spacing of one of the points (the model's resolution). The identity comes first.
+pub fn symmetric_turns(points: &[Vec3], axis: Vec3) -> Vec<Pose> {
+    let identity = vec![Pose::default()];
+    if points.len() < 2 || axis.length_squared() == 0.0 {
+        return identity;
+    }
+    let axis = axis.normalize();
+    let centroid = points.iter().sum::<Vec3>() / points.len() as f32;
+    // The points' spacing: the median distance to their nearest neighbour (a sample suffices).
+    let mut nearest: Vec<f32> = points
+        .iter()
+        .step_by(points.len().div_ceil(200))
+        .map(|p| {
+            points
+                .iter()
+                .map(|q| p.distance(*q))
+                .filter(|d| *d > 1e-6)
+                .fold(f32::INFINITY, f32::min)
+        })
+        .collect();
+    nearest.sort_by(f32::total_cmp);
+    let spacing = nearest[nearest.len() / 2];
+    if !spacing.is_finite() {
+        return identity;
+    }
+    let cell = |p: Vec3| (p / spacing).floor().as_ivec3();
+    let mut grid: std::collections::HashMap<glam::IVec3, Vec<Vec3>> = Default::default();
+    for p in points {
+        grid.entry(cell(*p)).or_default().push(*p);
+    }
+    let near_shape = |q: Vec3| {
+        let c = cell(q);
+        (-1..=1).any(|i| {
+            (-1..=1).any(|j| {
+                (-1..=1).any(|k| {
+                    grid.get(&(c + glam::IVec3::new(i, j, k)))
+                        .is_some_and(|v| v.iter().any(|p| p.distance(q) <= spacing))
+                })
+            })
+        })
+    };
+    let mut turns = identity;
+    for degrees in (5..360).step_by(5) {
+        let turn = Quat::from_axis_angle(axis, (degrees as f32).to_radians());
+        let pose = Pose::new(centroid - turn * centroid, turn);
+        let kept = points
+            .iter()
+            .filter(|p| near_shape(pose.transform_point(**p)))
+            .count();
+        if kept as f32 >= SYMMETRY_SHARE * points.len() as f32 {
+            turns.push(pose);
+        }
+    }
+    turns
+}
+
+/// Share of an object's points a turn must keep within the shape to leave it as it was.
+const SYMMETRY_SHARE: f32 = 0.99;
 
 /// The index of the first sample at or after `t` (the last one past the end).
 fn at<T>(track: &[(f64, T)], t: f64) -> usize {
@@ -213,4 +297,62 @@ fn read_ground_truth_particles(path: &Path) -> Result<ParticleTruth> {
         points.push(Vec3::new(v[0], v[1], v[2]));
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points on a 5 mm lattice inside `inside` (a 20 cm cube around the origin).
+    fn lattice(inside: impl Fn(Vec3) -> bool) -> Vec<Vec3> {
+        let mut points = Vec::new();
+        for i in -20..=20 {
+            for j in -20..=20 {
+                for k in -3..=3 {
+                    let p = Vec3::new(i as f32, j as f32, k as f32) * 0.005;
+                    if inside(p) {
+                        points.push(p);
+                    }
+                }
+            }
+        }
+        points
+    }
+
+    fn degrees(turns: &[Pose]) -> Vec<f32> {
+        turns
+            .iter()
+            .map(|t| crate::math::rotation_angle_between(Quat::IDENTITY, t.rotation).to_degrees())
+            .collect()
+    }
+
+    /// A cylinder looks the same turned any way about its axis, a box only after a half turn, a
+    /// T-block never: those turns, and only those, are not tracking errors.
+    #[test]
+    fn only_turns_that_leave_the_shape_as_it_was_are_unseen() {
+        let cylinder = lattice(|p| p.x.hypot(p.y) <= 0.04);
+        let turns = degrees(&symmetric_turns(&cylinder, Vec3::Z));
+        assert!(turns.len() > 60, "{turns:?}");
+        let offset = Vec3::new(0.3, -0.1, 0.0);
+        let box_ = lattice(|p| p.x.abs() <= 0.045 && p.y.abs() <= 0.03);
+        let moved: Vec<Vec3> = box_.iter().map(|p| *p + offset).collect();
+        let turns = degrees(&symmetric_turns(&moved, Vec3::Z));
+        assert!(turns.iter().any(|d| (d - 180.0).abs() < 1.0), "{turns:?}");
+        assert!(
+            turns.iter().all(|d| *d < 6.0 || (d - 180.0).abs() < 6.0),
+            "{turns:?}"
+        );
+        // The half turn is about the box's centre, wherever its body frame is.
+        let half = symmetric_turns(&moved, Vec3::Z)
+            .into_iter()
+            .find(|t| crate::math::rotation_angle_between(Quat::IDENTITY, t.rotation) > 3.0)
+            .unwrap();
+        assert!(half.transform_point(offset).distance(offset) < 1e-4);
+        let tblock = lattice(|p| {
+            (p.y > 0.02 && p.y <= 0.045 && p.x.abs() <= 0.09)
+                || (p.y <= 0.02 && p.y > -0.1 && p.x.abs() <= 0.0125)
+        });
+        let turns = degrees(&symmetric_turns(&tblock, Vec3::Z));
+        assert!(turns.iter().all(|d| *d < 6.0), "{turns:?}");
+    }
 }

@@ -175,8 +175,11 @@ impl RobotInWorld {
             }
             let mut points = Vec::new();
             for g in &link.geometry {
+                // Particles of `radius` on the shape shrunk by it: the robot collides where its
+                // URDF surface is, not a particle radius outside it.
+                let shape = sampling::inset(&g.shape, radius as f64);
                 points.extend(
-                    sampling::sample(&g.shape, spacing, config.sampling)
+                    sampling::sample(&shape, spacing, config.sampling)
                         .into_iter()
                         .map(|p| g.origin.transform_point3(p)),
                 );

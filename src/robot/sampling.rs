@@ -15,6 +15,31 @@ pub enum Sampling {
     Volume,
 }
 
+/// `shape` shrunk by `by` on every side (a primitive's sizes less `by`, never below zero), so that
+/// spheres of radius `by` centred on its surface fill the original shape and no more. Meshes are
+/// returned as they are: their inside is not known reliably.
+pub fn inset(shape: &Shape, by: f64) -> Shape {
+    let less = |x: f64| (x - by).max(0.0);
+    match shape {
+        Shape::Box { size } => Shape::Box {
+            size: (*size - DVec3::splat(2.0 * by)).max(DVec3::ZERO),
+        },
+        Shape::Cylinder { radius, length } => Shape::Cylinder {
+            radius: less(*radius),
+            length: (length - 2.0 * by).max(0.0),
+        },
+        // The caps shrink with the radius: the length between their centres stays.
+        Shape::Capsule { radius, length } => Shape::Capsule {
+            radius: less(*radius),
+            length: *length,
+        },
+        Shape::Sphere { radius } => Shape::Sphere {
+            radius: less(*radius),
+        },
+        mesh @ Shape::Mesh { .. } => mesh.clone(),
+    }
+}
+
 /// Keep one point per cubic cell of edge `spacing` (the first in input order: deterministic).
 pub fn thin(points: Vec<DVec3>, spacing: f64) -> Vec<DVec3> {
     let mut seen = HashSet::new();
@@ -290,6 +315,45 @@ mod tests {
                 worst < 1.5 * spacing,
                 "{s:?}: a surface point is {worst} m from any sample"
             );
+        }
+    }
+
+    #[test]
+    fn spheres_on_an_inset_surface_reach_the_original_surface_and_no_further() {
+        let by = 0.006;
+        let shapes = [
+            Shape::Box {
+                size: DVec3::new(0.2, 0.1, 0.05),
+            },
+            Shape::Cylinder {
+                radius: 0.015,
+                length: 0.152,
+            },
+            Shape::Capsule {
+                radius: 0.03,
+                length: 0.1,
+            },
+            Shape::Sphere { radius: 0.04 },
+        ];
+        for shape in &shapes {
+            let pts = sample(&inset(shape, by), 0.004, Sampling::Surface);
+            assert!(!pts.is_empty());
+            // Along each axis, the furthest sphere reaches the original extent.
+            for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+                let reach = pts.iter().map(|p| p.dot(axis)).fold(f64::MIN, f64::max) + by;
+                let extent = match shape {
+                    Shape::Box { size } => size.dot(axis) / 2.0,
+                    Shape::Cylinder { radius, length } if axis == DVec3::Z => length / 2.0,
+                    Shape::Cylinder { radius, .. } => *radius,
+                    Shape::Capsule { radius, length } if axis == DVec3::Z => length / 2.0 + radius,
+                    Shape::Capsule { radius, .. } | Shape::Sphere { radius } => *radius,
+                    Shape::Mesh { .. } => unreachable!(),
+                };
+                assert!(
+                    (reach - extent).abs() < 1e-3,
+                    "{shape:?} along {axis}: spheres reach {reach}, the shape {extent}"
+                );
+            }
         }
     }
 

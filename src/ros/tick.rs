@@ -509,14 +509,7 @@ impl Observer for Outputs {
         let world = tick.tracker.world();
         for e in &tick.report.track_events {
             let name = &world.shapes.name[e.shape as usize];
-            log(&match e.lost {
-                true => format!(
-                    "object {name}: lost (silhouette agreement {:.2}: the model no longer overlaps \
-                     what the cameras see)",
-                    e.agreement
-                ),
-                false => format!("object {name}: found again"),
-            });
+            log(&e.describe(name, e.time));
         }
         let header = Header {
             stamp: Time::from_seconds(tick.inputs.time),

@@ -53,6 +53,21 @@ pub struct Trace {
     pub robot: Option<(RobotInWorld, JointTrajectory)>,
     pub states: Vec<State>,
     pub samples: Vec<Sample>,
+    /// Objects the tracker moved to where the images showed them (`tracker::Change::Relocated`):
+    /// something outside the model moved them, so no prediction spanning the jump is physics.
+    pub jumps: Vec<Jump>,
+}
+
+/// An object relocated at the end of the tick that left `state` (an index into `states`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Jump {
+    pub object: String,
+    #[serde(skip)]
+    pub shape: ShapeId,
+    #[serde(skip)]
+    pub state: usize,
+    pub time: f64,
+    pub jump_m: f32,
 }
 
 /// Keeps a trace of a tracking run, as an observer of its ticks: the world and physics at the
@@ -73,12 +88,25 @@ impl Observer for Recorder {
             robot: tracker.robot().map(|(r, t)| (r.clone(), t.clone())),
             states: vec![State::of(world)],
             samples: Vec::new(),
+            jumps: Vec::new(),
         };
         Ok(())
     }
 
     fn tick(&mut self, tick: &Tick) -> Result<()> {
-        self.trace.states.push(State::of(tick.tracker.world()));
+        let world = tick.tracker.world();
+        self.trace.states.push(State::of(world));
+        for e in &tick.report.track_events {
+            if let crate::tracker::Change::Relocated { jump_m, .. } = e.change {
+                self.trace.jumps.push(Jump {
+                    object: world.shapes.name[e.shape as usize].clone(),
+                    shape: e.shape,
+                    state: self.trace.states.len() - 1,
+                    time: e.time,
+                    jump_m,
+                });
+            }
+        }
         for (t, q) in &tick.inputs.joint_samples {
             self.recorded.push(*t, q.clone());
         }
@@ -113,6 +141,14 @@ pub struct Prediction {
 impl Trace {
     pub fn dt(&self) -> f64 {
         self.physics.dt as f64
+    }
+
+    /// Whether `object` was relocated between states `from` and `to` (a prediction from `from`
+    /// to `to` would compare the physics with a jump it cannot make).
+    pub fn jumps_between(&self, object: ShapeId, from: usize, to: usize) -> bool {
+        self.jumps
+            .iter()
+            .any(|j| j.shape == object && j.state > from && j.state <= to)
     }
 
     /// The world as tracked at state `k`, with no visual forces pending. Velocities are central
@@ -224,6 +260,7 @@ impl Trace {
             robot: None,
             states: vec![State::of(&world)],
             samples: Vec::new(),
+            jumps: Vec::new(),
         };
         let mut solver = Solver::new(truth, &world).unwrap();
         for k in 0..ticks {

@@ -4,6 +4,10 @@
 //! it is found again after `FOUND_AFTER` measured ticks above `FOUND_ABOVE`. Ticks that measure
 //! nothing (too little of the object in view) change nothing.
 //!
+//! An object whose agreement stays below `SEARCH_BELOW` for `SEARCH_AFTER` ticks is searched for
+//! in the images (`correct::relocate`); where it is found, the tracker moves it there and says so
+//! (`Change::Relocated`): a jump the model did not make is something outside the model moving it.
+//!
 //! Owns the state per object and the events; what is done about a lost object is its caller's.
 
 use crate::world::ShapeId;
@@ -13,15 +17,61 @@ pub const LOST_BELOW: f32 = 0.35;
 pub const LOST_AFTER: usize = 10;
 pub const FOUND_ABOVE: f32 = 0.6;
 pub const FOUND_AFTER: usize = 3;
+/// Measured ticks below `SEARCH_BELOW` before the object is searched for: an object that only
+/// partly overlaps what the cameras see is searched for before it is lost.
+pub const SEARCH_BELOW: f32 = 0.6;
+pub const SEARCH_AFTER: usize = 3;
 
-/// An object lost or found again, at the end of the tick that decided it.
+/// What happened to a tracked object.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum Change {
+    Lost,
+    Found,
+    /// Found in the images away from where the model had it, and moved there: from and to are
+    /// the object's positions (m, world), `turn_deg` its turn about the vertical.
+    Relocated {
+        from: [f32; 3],
+        to: [f32; 3],
+        jump_m: f32,
+        turn_deg: f32,
+    },
+}
+
+/// An object lost, found again or relocated, at the end of the tick that decided it.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TrackEvent {
     pub shape: ShapeId,
     pub time: f64,
-    pub lost: bool,
-    /// The agreement that decided it.
+    pub change: Change,
+    /// The agreement that decided it (relocated: the images' agreement with the new pose).
     pub agreement: f32,
+}
+
+impl TrackEvent {
+    /// The log line for `object`, `at_s` seconds in.
+    pub fn describe(&self, object: &str, at_s: f64) -> String {
+        let a = self.agreement;
+        match self.change {
+            Change::Lost => format!(
+                "object {object}: lost at {at_s:.2} s (silhouette agreement {a:.2}: the model no \
+                 longer overlaps what the cameras see)"
+            ),
+            Change::Found => format!("object {object}: found again at {at_s:.2} s"),
+            Change::Relocated {
+                jump_m, turn_deg, ..
+            } => format!(
+                "object {object}: relocated at {at_s:.2} s, {:.0} mm and {turn_deg:.0} deg from \
+                 where the model had it (the images agree {a:.2} there): moved by something \
+                 outside the model",
+                jump_m * 1e3
+            ),
+        }
+    }
+
+    pub fn lost(&self) -> bool {
+        self.change == Change::Lost
+    }
 }
 
 #[derive(Clone, Debug, Default)]
@@ -29,6 +79,8 @@ pub struct TrackHealth {
     /// Per shape: consecutive measured ticks against the current state, whether lost, and the
     /// newest agreement measured.
     streak: Vec<usize>,
+    /// Per shape: consecutive measured ticks below `SEARCH_BELOW`, lost or not.
+    low: Vec<usize>,
     lost: Vec<bool>,
     last: Vec<Option<f32>>,
 }
@@ -38,12 +90,14 @@ impl TrackHealth {
     pub fn update(&mut self, time: f64, agreement: &[Option<f32>]) -> Vec<TrackEvent> {
         let n = agreement.len();
         self.streak.resize(n, 0);
+        self.low.resize(n, 0);
         self.lost.resize(n, false);
         self.last.resize(n, None);
         let mut events = Vec::new();
         for (s, a) in agreement.iter().enumerate() {
             let Some(a) = *a else { continue };
             self.last[s] = Some(a);
+            self.low[s] = if a < SEARCH_BELOW { self.low[s] + 1 } else { 0 };
             let against = match self.lost[s] {
                 false => a < LOST_BELOW,
                 true => a > FOUND_ABOVE,
@@ -60,12 +114,29 @@ impl TrackHealth {
                 events.push(TrackEvent {
                     shape: s as ShapeId,
                     time,
-                    lost: self.lost[s],
+                    change: match self.lost[s] {
+                        true => Change::Lost,
+                        false => Change::Found,
+                    },
                     agreement: a,
                 });
             }
         }
         events
+    }
+
+    /// Whether shape `s` has disagreed with the images long enough to be searched for.
+    /// A lost object is searched for whether or not it is measured (out of view, it is not).
+    pub fn wants_search(&self, s: ShapeId) -> bool {
+        self.is_lost(s) || self.low.get(s as usize).is_some_and(|&n| n >= SEARCH_AFTER)
+    }
+
+    /// Shape `s` was moved to where the images show it: its disagreement starts over (a lost
+    /// object still needs `FOUND_AFTER` good ticks to be found).
+    pub fn relocated(&mut self, s: ShapeId) {
+        if let Some(n) = self.low.get_mut(s as usize) {
+            *n = 0;
+        }
     }
 
     /// Whether shape `s` is lost now.
@@ -99,9 +170,9 @@ mod tests {
             events.extend(tick(&mut h, t, a));
         }
         assert_eq!(events.len(), 1, "{events:?}");
-        assert!(events[0].lost && h.is_lost(0));
+        assert!(events[0].lost() && h.is_lost(0));
         assert!(tick(&mut h, 30, Some(0.9)).is_empty() && tick(&mut h, 31, Some(0.9)).is_empty());
         let found = tick(&mut h, 32, Some(0.9));
-        assert!(found.len() == 1 && !found[0].lost && !h.is_lost(0));
+        assert!(found.len() == 1 && found[0].change == Change::Found && !h.is_lost(0));
     }
 }

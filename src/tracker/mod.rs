@@ -9,17 +9,18 @@
 pub mod health;
 mod observer;
 
-pub use health::{TrackEvent, TrackHealth};
+pub use health::{Change, TrackEvent, TrackHealth};
 pub use observer::{Observer, Tick};
 
 use crate::config::Config;
-use crate::correct::{CorrectConfig, CorrectStats, Corrector};
+use crate::correct::{CorrectConfig, CorrectStats, Corrector, relocate};
 use crate::inputs::{Inputs, TickInputs};
+use crate::math::Pose;
 use crate::physics::{PhysicsConfig, Solver};
 use crate::render::Camera;
 use crate::robot::{JointTrajectory, RobotInWorld};
 use crate::scene::Scene;
-use crate::world::World;
+use crate::world::{ShapeId, ShapeKind, World};
 use anyhow::Result;
 use std::time::Instant;
 
@@ -33,7 +34,17 @@ pub struct Tracker {
     corrector: Option<Corrector>,
     /// Which tracked objects are lost (their silhouettes no longer agree with the images).
     health: TrackHealth,
+    /// Per shape: its pose at the newest tick the images agreed with it (where a search for it
+    /// starts), and when it was last searched for.
+    well_tracked: Vec<Option<Pose>>,
+    searched_at: Vec<f64>,
 }
+
+/// Seconds between two searches for the same object.
+pub const SEARCH_EVERY: f64 = 0.15;
+/// A search moves the object only where the images agree with it at least this well
+/// (`health::FOUND_ABOVE`) and this much better than where the model has it.
+pub const RELOCATE_MARGIN: f32 = 0.25;
 
 /// What one tick did.
 #[derive(Clone, Debug, Default)]
@@ -85,6 +96,8 @@ impl Tracker {
             solver,
             corrector,
             health: TrackHealth::default(),
+            well_tracked: Vec::new(),
+            searched_at: Vec::new(),
         })
     }
 
@@ -109,6 +122,17 @@ impl Tracker {
             let stats = corrector.correct(&mut self.scene.world, &views, dt)?;
             let time = self.scene.world.time;
             report.track_events = self.health.update(time, &stats.agreement);
+            let full: Vec<(Camera, &[glam::Vec3])> =
+                views.iter().map(|v| (v.camera, v.image)).collect();
+            let relocated = Self::relocate_lost(
+                corrector,
+                &mut self.scene.world,
+                &mut self.health,
+                (&mut self.well_tracked, &mut self.searched_at),
+                &full,
+                &stats.agreement,
+            )?;
+            report.track_events.extend(relocated);
             report.correction = Some(stats);
             report.cameras_used = views.len();
             report.correct_ms = clock.elapsed().as_secs_f64() * 1e3;
@@ -119,6 +143,71 @@ impl Tracker {
 
     /// One tick of the physics alone, with the robot on its current trajectory (a ground-truth
     /// world, or a tracker whose cameras are all gone).
+    /// Objects whose silhouettes have disagreed with the images for a few ticks are searched for
+    /// around where they were last well tracked (`correct::relocate`), and moved where the
+    /// images show them; each move is an event.
+    fn relocate_lost(
+        corrector: &mut Corrector,
+        world: &mut World,
+        health: &mut TrackHealth,
+        (well_tracked, searched_at): (&mut Vec<Option<Pose>>, &mut Vec<f64>),
+        views: &[(Camera, &[glam::Vec3])],
+        agreement: &[Option<f32>],
+    ) -> Result<Vec<TrackEvent>> {
+        let n = world.shapes.len();
+        well_tracked.resize(n, None);
+        searched_at.resize(n, f64::NEG_INFINITY);
+        let mut events = Vec::new();
+        for s in 0..n {
+            if world.shapes.kind[s] != ShapeKind::Rigid {
+                continue;
+            }
+            let shape = s as ShapeId;
+            let here = world.shapes.pose[s];
+            if !health.is_lost(shape)
+                && agreement
+                    .get(s)
+                    .copied()
+                    .flatten()
+                    .is_some_and(|a| a > health::FOUND_ABOVE)
+            {
+                well_tracked[s] = Some(here);
+            }
+            if !health.wants_search(shape) || world.time - searched_at[s] < SEARCH_EVERY {
+                continue;
+            }
+            searched_at[s] = world.time;
+            let reference = well_tracked[s].unwrap_or(here);
+            let search = relocate::Search {
+                occluder_threshold: corrector.config.occluder_threshold,
+                ..Default::default()
+            };
+            let Some(found) = corrector.relocate(world, shape, reference, views, &search)? else {
+                continue;
+            };
+            if found.score < health::FOUND_ABOVE || found.score < found.score_here + RELOCATE_MARGIN
+            {
+                continue;
+            }
+            world.move_shape(shape, found.pose.mul(&here.inverse()));
+            health.relocated(shape);
+            well_tracked[s] = Some(found.pose);
+            let turn = crate::math::rotation_angle_between(here.rotation, found.pose.rotation);
+            events.push(TrackEvent {
+                shape,
+                time: world.time,
+                change: Change::Relocated {
+                    from: here.translation.to_array(),
+                    to: found.pose.translation.to_array(),
+                    jump_m: here.translation.distance(found.pose.translation),
+                    turn_deg: turn.to_degrees(),
+                },
+                agreement: found.score,
+            });
+        }
+        Ok(events)
+    }
+
     pub fn predict(&mut self) -> Result<()> {
         self.scene.advance(&mut self.solver)
     }

@@ -2,6 +2,7 @@
 
     python generate.py --kind drag --seed 3 --out DIR [--width 320 --height 180] [--shape long_push]
     python generate.py --kind all --seeds 0-4 --out DIR
+    python generate.py --kind model_errors --seeds 0-4 --out DIR
 
 Each recording is a folder: `bag/` (rosbag2, MCAP or SQLite3; `--layout realsense` for what a
 RealSense + Franka rig records), `ground_truth.csv`, `truth.json` (the
@@ -57,7 +58,9 @@ def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--kind", required=True, help=f"one of {', '.join(scenes.KINDS)}, or all")
+    ap.add_argument("--kind", required=True,
+                    help=f"one of {', '.join(scenes.KINDS + scenes.MODEL_ERRORS[:-2])}; all (the concealed "
+                         "physics set) or model_errors (the tracking set)")
     ap.add_argument("--seed", type=int)
     ap.add_argument("--seeds", help="a range a-b or a list a,b,c")
     ap.add_argument("--shape", choices=scenes.SHAPES)
@@ -70,7 +73,7 @@ def main() -> None:
                     help="realsense: JPEG colour, 16UC1 depth, no masks, the drivers' tf chain (see write.py)")
     ap.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     a = ap.parse_args()
-    kinds = scenes.KINDS if a.kind == "all" else [a.kind]
+    kinds = {"all": scenes.KINDS, "model_errors": scenes.MODEL_ERRORS}.get(a.kind, [a.kind])
     chosen = seeds(a.seeds) if a.seeds else [a.seed if a.seed is not None else 0]
     for kind in kinds:
         for seed in chosen:

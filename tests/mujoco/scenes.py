@@ -15,6 +15,11 @@ from dataclasses import dataclass, field
 # The families a scene can hide, and the two controls.
 KINDS = ["control_pushed", "control_still", "tilt", "drag", "patch", "weight", "tether", "heavy", "restitution"]
 
+# Issue 25's set of model errors: friction several times too high (`slippery`: the table is) and
+# too low (`sticky`), an unmodelled spring (`tether`), a mass five times wrong in a collision
+# (`heavy5`), an unmodelled hand pushing the object (`hand`), and the model right (the controls).
+MODEL_ERRORS = ["slippery", "sticky", "tether", "heavy5", "hand", "control_pushed", "control_still"]
+
 # Recording shapes: one push then rest, a push that lasts the whole recording, several pushes.
 SHAPES = ["push_then_rest", "long_push", "several_pushes"]
 
@@ -122,6 +127,8 @@ class Scene:
     patch: dict | None = None  # {"edge_point": [x, y], "normal": [x, y], "friction": mu}: beyond the edge
     spring: dict | None = None  # {"anchor": [x, y, z], "point": body-frame [x, y, z], "stiffness": N/m, "rest_length": m}
     restitution: float | None = None  # MuJoCo contact damping ratio of the dropped object
+    engine_friction: float | None = None  # the engine's friction where it differs from `friction`
+    hand: list[Push] = field(default_factory=list)  # an unmodelled kinematic body's pushes
 
 
 def make_object(rng: random.Random, shape: str, name: str, label: int, x: float, y: float) -> Obj:
@@ -150,7 +157,7 @@ def make_object(rng: random.Random, shape: str, name: str, label: int, x: float,
 # Kinds whose effect shows while an object slides free: their short pushes are strikes, fast
 # enough that the object slides on after the rod stops. (A long, slow push hides them: then the
 # honest verdict is "not enough evidence".)
-STRIKES = {"drag", "tilt", "patch", "heavy"}
+STRIKES = {"drag", "tilt", "patch", "heavy", "slippery", "sticky", "heavy5"}
 
 
 def plan_pushes(rng: random.Random, shape: str, target: Obj, duration: float, strike: bool) -> list[Push]:
@@ -210,12 +217,12 @@ def plan_pushes(rng: random.Random, shape: str, target: Obj, duration: float, st
 
 def draw(kind: str, seed: int, shape: str | None = None) -> Scene:
     """The scene of `kind` for `seed` (recording shape drawn too unless given)."""
-    if kind not in KINDS:
-        raise ValueError(f"unknown kind {kind} (one of {', '.join(KINDS)})")
+    if kind not in KINDS + MODEL_ERRORS:
+        raise ValueError(f"unknown kind {kind} (one of {', '.join(KINDS + MODEL_ERRORS[:-2])})")
     rng = random.Random(f"{kind}/{seed}")
     shape = shape or rng.choice(SHAPES)
     # A slippery table where the effect shows in sliding, so that an object slides a few cm.
-    friction = round(rng.uniform(0.12, 0.2) if kind in ("drag", "tilt") else rng.uniform(0.35, 0.6), 3)
+    friction = round(rng.uniform(0.12, 0.2) if kind in ("drag", "tilt", "sticky") else rng.uniform(0.35, 0.6), 3)
     x, y = rng.uniform(0.47, 0.55), rng.uniform(-0.08, 0.08)
     obj_shape = rng.choice(["box", "cylinder", "bar", "tblock"])
     first = make_object(rng, obj_shape, "obj1", 1, x, y)
@@ -268,7 +275,21 @@ def draw(kind: str, seed: int, shape: str | None = None) -> Scene:
         k = round(rng.uniform(15.0, 40.0), 3)
         s.spring = {"anchor": anchor, "point": [0.0, 0.0, 0.0], "stiffness": k, "rest_length": 0.12}
         s.truth = {"family": "spring", "object": first.name, "parameter": k, "unit": "N/m", "anchor": anchor}
-    elif kind == "heavy":
+    elif kind == "slippery":
+        # The table is several times more slippery than configured: the object slides on.
+        s.engine_friction = round(friction / rng.uniform(3.0, 5.0), 3)
+        s.truth = {"family": "friction", "object": first.name, "parameter": s.engine_friction, "unit": "",
+                   "configured": friction}
+    elif kind == "sticky":
+        # The table is several times less slippery than configured: the object stops short.
+        s.engine_friction = round(friction * rng.uniform(3.0, 5.0), 3)
+        s.truth = {"family": "friction", "object": first.name, "parameter": s.engine_friction, "unit": "",
+                   "configured": friction}
+    elif kind == "hand":
+        # The robot stays parked; a hand the model does not have pushes the object.
+        s.hand, s.pushes = s.pushes, []
+        s.truth = {"family": "external_push", "object": first.name, "parameter": None, "unit": ""}
+    elif kind in ("heavy", "heavy5"):
         # A second object in the first one's path, heavier than the configuration says.
         p = s.pushes[0]
         d = (p.end[0] - p.start[0], p.end[1] - p.start[1])
@@ -276,7 +297,7 @@ def draw(kind: str, seed: int, shape: str | None = None) -> Scene:
         gap = first.footprint() + 0.045
         second = make_object(rng, rng.choice(["box", "cylinder"]), "obj2", 2, x + d[0] / n * gap, y + d[1] / n * gap)
         second.mass = first.mass
-        ratio = round(rng.uniform(2.0, 4.0), 3)
+        ratio = round(rng.uniform(2.0, 4.0), 3) if kind == "heavy" else rng.choice([5.0, 0.2])
         second.true_mass = second.mass * ratio
         objects.append(second)
         # Long enough to carry the first object into the second.

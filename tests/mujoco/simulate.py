@@ -107,15 +107,17 @@ def build(scene: Scene, urdf: str, width: int, height: int, rng: np.random.Gener
             # The arm is driven kinematically; heavy links barely yield to what they push.
             body.mass = max(body.mass, 1e-3) * 50.0
             body.gravcomp = 1.0
+    # The engine's one friction for every contact (MuJoCo takes the larger of two): the
+    # configuration's, unless the scene hides a different one.
+    mu = scene.engine_friction if scene.engine_friction is not None else scene.friction
     for g in spec.geoms:
         g.rgba = [0.92, 0.92, 0.92, 1.0]
-        # The configuration's one friction for every contact (MuJoCo takes the larger of two).
-        g.friction = [scene.friction, 0.005, 0.0001]
+        g.friction = [mu, 0.005, 0.0001]
     spec.body("panda_pusher").add_site(name="tip", pos=list(TIP))
     world = spec.worldbody
     # With a friction patch the floor is frictionless and each object carries the friction of
     # where it stands (MuJoCo takes the larger friction of two touching geoms).
-    floor_mu = 0.0 if scene.patch else scene.friction
+    floor_mu = 0.0 if scene.patch else mu
     world.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1], rgba=[0.55, 0.55, 0.52, 1],
                    friction=[floor_mu, 0.005, 0.0001])
     world.add_light(pos=[0.5, 0.0, 1.5], dir=[0, 0, -1], diffuse=[0.6, 0.6, 0.6], castshadow=False)
@@ -129,13 +131,18 @@ def build(scene: Scene, urdf: str, width: int, height: int, rng: np.random.Gener
         body.mass = o.true_mass
         body.ipos = list(com + np.array(o.com_offset))
         body.inertia = list(moments)
-        geom = dict(rgba=[*o.colour, 1.0], friction=[scene.friction, 0.005, 0.0001], density=0.0)
+        geom = dict(rgba=[*o.colour, 1.0], friction=[mu, 0.005, 0.0001], density=0.0)
         if scene.restitution is not None:
             geom["solref"] = [0.005, scene.restitution]
         if o.shape == "cylinder":
             body.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[o.radius, o.half_height, 0], **geom)
         for p in o.parts:
             body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=list(p.centre), size=list(p.half), **geom)
+    if scene.hand:
+        # A fingertip-sized capsule upright, moved as a mocap body: kinematic, seen, not modelled.
+        hand = world.add_body(name="hand", mocap=True, pos=list(hand_pose(scene, 0.0)))
+        hand.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[HAND_RADIUS, HAND_HALF_LENGTH, 0],
+                      rgba=[0.85, 0.62, 0.5, 1.0], friction=[mu, 0.005, 0.0001])
     fovy = 42.0
     target = np.array([0.5, 0.0, 0.02])
     eyes = [np.array([1.05, -0.45, 0.55]), np.array([1.0, 0.5, 0.6]), np.array([0.3, -0.6, 0.65])]
@@ -152,20 +159,25 @@ def build(scene: Scene, urdf: str, width: int, height: int, rng: np.random.Gener
 
 
 def tip_target(scene: Scene, t: float) -> np.ndarray:
-    """Where the pusher tip should be at `t`: on a push's line while it pushes, lifted between
-    pushes, coming down before the first and backing off and up after the last; parked away from
-    the objects in a scene without pushes."""
-    if not scene.pushes:
+    """Where the pusher tip should be at `t` (see `path_target`)."""
+    return path_target(scene.pushes, t)
+
+
+def path_target(pushes: list, t: float) -> np.ndarray:
+    """Where a pusher following `pushes` should be at `t`: on a push's line while it pushes, lifted
+    between pushes, coming down before the first and backing off and up after the last; parked
+    away from the objects without pushes."""
+    if not pushes:
         return np.array(PARKED)
-    first, last = scene.pushes[0], scene.pushes[-1]
+    first, last = pushes[0], pushes[-1]
     lift = 0.35  # s to come down to, or up from, a push
-    for k, p in enumerate(scene.pushes):
+    for k, p in enumerate(pushes):
         if p.t0 <= t <= p.t1:
             a = (t - p.t0) / (p.t1 - p.t0)
             return np.array([*(np.array(p.start) * (1 - a) + np.array(p.end) * a), TIP_HEIGHT])
-        if k + 1 < len(scene.pushes) and p.t1 < t < scene.pushes[k + 1].t0:
+        if k + 1 < len(pushes) and p.t1 < t < pushes[k + 1].t0:
             # Up and back over to the next start.
-            q = scene.pushes[k + 1]
+            q = pushes[k + 1]
             a = (t - p.t1) / (q.t0 - p.t1)
             xy = np.array(p.end) * (1 - a) + np.array(q.start) * a
             return np.array([*xy, TIP_HEIGHT + 0.08 * math.sin(math.pi * a)])
@@ -181,6 +193,17 @@ def tip_target(scene: Scene, t: float) -> np.ndarray:
     d = np.array(last.end) - np.array(last.start)
     d /= np.linalg.norm(d)
     return end + np.array([*(-0.03 * a * d), 0.1 * a])
+
+
+HAND_RADIUS = 0.018
+HAND_HALF_LENGTH = 0.05
+
+
+def hand_pose(scene: Scene, t: float) -> np.ndarray:
+    """The hand's body position at `t`: its lowest point where a pusher tip would be, or lifted out
+    of the way when it has no push to make."""
+    tip = path_target(scene.hand, t) if scene.hand else np.array([0.3, 0.35, 0.4])
+    return tip + np.array([0.0, 0.0, HAND_RADIUS + HAND_HALF_LENGTH - 0.012])
 
 
 def solve_ik(model: mujoco.MjModel, data: mujoco.MjData, target: np.ndarray, q: np.ndarray, iterations: int = 60) -> np.ndarray:
@@ -291,6 +314,8 @@ def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
         if k == steps:
             break
         apply_effects(model, data, scene, bodies)
+        if scene.hand:
+            data.mocap_pos[0] = hand_pose(scene, t + dt)
         # Kinematic robot: the plan's angles and velocities, whatever the contacts did.
         data.qpos[:nq] = plan[k]
         data.qvel[:nq] = (plan[k + 1] - plan[k]) / dt

@@ -69,8 +69,15 @@ pub fn report(
             None => (outcome_before.clone(), study.base_heldout.clone()),
         };
         write_object(out, trace, &study, cut, &after_heldout)?;
+        let relocated = trace
+            .jumps
+            .iter()
+            .filter(|j| j.shape == study.shape)
+            .cloned()
+            .collect();
         objects.push(object_report(
             study,
+            relocated,
             outcome_before,
             outcome_after,
             cut,
@@ -148,6 +155,7 @@ fn outcome(
 
 fn object_report(
     study: Study,
+    relocated: Vec<crate::trace::Jump>,
     before: Outcome,
     after: Outcome,
     cut: f64,
@@ -213,6 +221,7 @@ fn object_report(
             })
             .cloned()
             .collect(),
+        relocated,
         mismatch: study.explained,
         explained_by: study.explained_by,
         effect: study

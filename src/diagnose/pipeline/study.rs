@@ -85,6 +85,8 @@ fn windows(
     let all: Vec<usize> = (0..=last)
         .step_by(WINDOW_STRIDE)
         .filter(|&k| trace.states[k].time >= plan.t_first + plan.opts.settle)
+        // A relocation is something outside the model moving the object: never fitted.
+        .filter(|&k| !trace.jumps_between(shape, k, k + horizon))
         .collect();
     let base = trace.predict(&trace.physics, shape, &all, horizon)?;
     let time = |k: usize| trace.states[k].time;

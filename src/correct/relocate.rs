@@ -1,0 +1,416 @@
+//! Re-localisation: find a tracked object again in the images once the model has lost it (the
+//! rendered object no longer overlaps the observed one, so visual forces have no gradient left to
+//! follow). Candidate poses are the object's last well-tracked pose moved across the table and
+//! turned about the vertical; each is scored by how many of the object's Gaussians, placed there,
+//! land on pixels that look more like their own colour than like the static scene rendered there
+//! (the relative test of `agreement`), over every camera. A coarse grid over the search radius,
+//! then a fine one around its best.
+//!
+//! Owns the search and its score; moving the object and reporting the jump is the tracker's.
+
+use super::Corrector;
+use crate::math::Pose;
+use crate::render::Camera;
+use crate::world::{ShapeId, ShapeKind, World};
+use anyhow::Result;
+use glam::{Quat, Vec3};
+use std::collections::HashSet;
+use std::f32::consts::PI;
+
+/// How the search looks for a lost object.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Search {
+    /// Furthest (m) from the last well-tracked position a candidate lies.
+    pub radius: f32,
+    /// Coarse grid step (m) and yaw step (rad); the fine grid is a fifth of them.
+    pub step: f32,
+    pub yaw_step: f32,
+    /// Largest turn (rad) either way about the vertical.
+    pub max_turn: f32,
+    /// Gaussians scored per camera and candidate on the coarse grid and on the fine one.
+    pub coarse_probes: usize,
+    pub fine_probes: usize,
+    /// The fine grid: steps either side of the coarse best, each this fraction of a coarse step.
+    pub fine_steps: i32,
+    pub fine_fraction: f32,
+    /// Pixels that show something the model does not have (`CorrectConfig::occluder_threshold`,
+    /// `super::explained`) count neither way; 0 counts every pixel.
+    pub occluder_threshold: f32,
+}
+
+impl Search {
+    /// Around where the model has an object, every tick (`CorrectConfig::pose_search_radius`):
+    /// small and cheap, a few thousand projections per candidate grid.
+    pub fn local(radius: f32, occluder_threshold: f32) -> Self {
+        Self {
+            occluder_threshold,
+            radius,
+            step: 0.01,
+            yaw_step: 6f32.to_radians(),
+            max_turn: 12f32.to_radians(),
+            coarse_probes: 64,
+            fine_probes: 192,
+            fine_steps: 3,
+            fine_fraction: 1.0 / 3.0,
+        }
+    }
+}
+
+impl Default for Search {
+    fn default() -> Self {
+        Self {
+            radius: 0.25,
+            step: 0.0125,
+            yaw_step: 15f32.to_radians(),
+            max_turn: PI,
+            coarse_probes: 96,
+            fine_probes: 1024,
+            fine_steps: 5,
+            fine_fraction: 0.2,
+            occluder_threshold: 0.0,
+        }
+    }
+}
+
+/// What the search found: the object's pose there and its score, and the score where the model
+/// has it now (both the share of visible Gaussians whose pixel looks like them, 0 to 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Found {
+    pub pose: Pose,
+    pub score: f32,
+    pub score_here: f32,
+}
+
+/// One camera's image and the static scene rendered into it with its coverage (full frames,
+/// row-major).
+struct Frame<'a> {
+    camera: &'a Camera,
+    image: &'a [Vec3],
+    background: &'a [Vec3],
+    coverage: &'a [f32],
+}
+
+/// A pixel the static scene covers less than this is outside the model (beyond the table): there
+/// the pixel must be within `ABSOLUTE_MATCH` (RGB distance, colours in [0, 1]) of the Gaussian's
+/// colour, as there is nothing to compare it with.
+const MIN_COVERAGE: f32 = 0.5;
+const ABSOLUTE_MATCH: f32 = 0.2;
+
+/// The object's Gaussians in its body frame, with their colours; the colours it shows and the
+/// occluder threshold when unexplained pixels are left out.
+struct Probe {
+    body: Vec<Vec3>,
+    colour: Vec<Vec3>,
+    occluders: Option<(Vec<Vec3>, f32)>,
+    /// Some of the object's particles (body frame), and the table cells the other tracked objects
+    /// stand on: a candidate that puts the object onto another one is no candidate (two objects
+    /// of one colour would otherwise swap).
+    footprint: Vec<Vec3>,
+    others: std::rc::Rc<HashSet<(i32, i32)>>,
+}
+
+/// Cell (m) of the table grid of `Probe::others`.
+const OVERLAP_CELL: f32 = 0.01;
+/// A candidate with more of its particles than this over cells another object stands on overlaps it.
+const MAX_OVERLAP: f32 = 0.3;
+
+fn cell_of(p: Vec3) -> (i32, i32) {
+    (
+        (p.x / OVERLAP_CELL).floor() as i32,
+        (p.y / OVERLAP_CELL).floor() as i32,
+    )
+}
+
+impl Probe {
+    fn of(world: &World, shape: ShapeId, occluder_threshold: f32) -> Self {
+        let g = &world.gaussians;
+        let (body, colour) = world
+            .gaussians_of(shape)
+            .into_iter()
+            .map(|i| {
+                // A rigid particle's frame turns with its shape: body = rest + local offset.
+                let p = g.parent[i] as usize;
+                (world.particles.rest[p] + g.local_mean[i], g.colour[i])
+            })
+            .unzip();
+        let occluders = (occluder_threshold > 0.0).then(|| {
+            let colours: &Vec<Vec3> = &colour;
+            (
+                super::palette(colours.iter().copied(), 0.05),
+                occluder_threshold,
+            )
+        });
+        let range = world.shapes.range(shape);
+        let footprint = range
+            .clone()
+            .step_by(range.len().div_ceil(32).max(1))
+            .map(|i| world.particles.rest[i])
+            .collect();
+        let others = (0..world.particles.len())
+            .filter(|&i| {
+                let s = world.particles.shape[i];
+                s != shape
+                    && matches!(
+                        world.shapes.kind[s as usize],
+                        ShapeKind::Rigid | ShapeKind::Rope
+                    )
+            })
+            .map(|i| cell_of(world.particles.position[i]))
+            .collect();
+        Self {
+            body,
+            colour,
+            occluders,
+            footprint,
+            others: std::rc::Rc::new(others),
+        }
+    }
+
+    /// Whether `pose` puts the object over another tracked object.
+    fn overlaps_others(&self, pose: &Pose) -> bool {
+        if self.others.is_empty() {
+            return false;
+        }
+        let over = self
+            .footprint
+            .iter()
+            .filter(|p| self.others.contains(&cell_of(pose.transform_point(**p))))
+            .count();
+        over as f32 > MAX_OVERLAP * self.footprint.len() as f32
+    }
+
+    /// Every `stride`-th Gaussian.
+    fn thinned(&self, stride: usize) -> Self {
+        let pick = |v: &[Vec3]| v.iter().step_by(stride.max(1)).copied().collect();
+        Self {
+            body: pick(&self.body),
+            colour: pick(&self.colour),
+            occluders: self.occluders.clone(),
+            footprint: self.footprint.clone(),
+            others: self.others.clone(),
+        }
+    }
+
+    /// Per camera, the share of the Gaussians whose pixel is closer to their colour than to the
+    /// static scene, of all of them (one that falls outside the frame counts against, so a
+    /// candidate cannot score by leaving the view); the middle camera's share. None with fewer
+    /// than `agreement::MIN_VISIBLE` in view anywhere.
+    fn score(&self, pose: &Pose, frames: &[Frame]) -> Option<f32> {
+        let mut shares = Vec::with_capacity(frames.len());
+        let mut seen_anywhere = 0;
+        for f in frames {
+            let (w, h) = (f.camera.width as f32, f.camera.height as f32);
+            let (mut seen, mut matched) = (0usize, 0usize);
+            for (b, c) in self.body.iter().zip(&self.colour) {
+                let (u, v, depth) = f.camera.project(pose.transform_point(*b));
+                if !(depth > 0.0 && u >= 0.0 && v >= 0.0 && u < w && v < h) {
+                    continue;
+                }
+                let k = v as usize * f.camera.width as usize + u as usize;
+                let (o, bg) = (f.image[k], f.background[k]);
+                if let Some((palette, threshold)) = &self.occluders
+                    && !super::explained(o, bg, palette, *threshold)
+                {
+                    continue;
+                }
+                seen += 1;
+                matched += match f.coverage[k] < MIN_COVERAGE {
+                    true => o.distance(*c) < ABSOLUTE_MATCH,
+                    false => o.distance(*c) < o.distance(bg),
+                } as usize;
+            }
+            seen_anywhere += seen;
+            let all = match self.occluders {
+                // Left-out pixels count neither way.
+                Some(_) => seen,
+                None => self.body.len(),
+            };
+            if all > 0 {
+                shares.push(matched as f32 / all as f32);
+            }
+        }
+        if seen_anywhere < super::agreement::MIN_VISIBLE || shares.is_empty() {
+            return None;
+        }
+        // The middle camera's share (of two, the lower): one camera an unmodelled hand covers,
+        // or whose view is out of its element, neither makes nor breaks a pose.
+        shares.sort_by(|a, b| b.total_cmp(a));
+        Some(shares[shares.len() / 2])
+    }
+}
+
+/// Score given up for a move across the whole search radius, or a half turn.
+const MOVE_PENALTY: f32 = 0.05;
+
+/// `reference` moved by (dx, dy) on the table and turned by `yaw` about the vertical through it.
+fn candidate(reference: &Pose, dx: f32, dy: f32, yaw: f32) -> Pose {
+    Pose::new(
+        reference.translation + Vec3::new(dx, dy, 0.0),
+        (Quat::from_rotation_z(yaw) * reference.rotation).normalize(),
+    )
+}
+
+/// Best-scoring candidate of a grid of `n` steps of `step` either side in x and y and `m` steps
+/// of `yaw_step` either side in yaw, around (x, y, yaw).
+#[allow(clippy::too_many_arguments)]
+fn best_on_grid(
+    probe: &Probe,
+    frames: &[Frame],
+    reference: &Pose,
+    (x, y, yaw): (f32, f32, f32),
+    (n, step): (i32, f32),
+    (m, yaw_step): (i32, f32),
+    radius: f32,
+) -> Option<(f32, (f32, f32, f32))> {
+    let mut best: Option<(f32, (f32, f32, f32))> = None;
+    for i in -n..=n {
+        for j in -n..=n {
+            let (dx, dy) = (x + i as f32 * step, y + j as f32 * step);
+            if dx.hypot(dy) > radius {
+                continue;
+            }
+            for k in -m..=m {
+                let turn = yaw + k as f32 * yaw_step;
+                let pose = candidate(reference, dx, dy, turn);
+                if probe.overlaps_others(&pose) {
+                    continue;
+                }
+                // Among poses the images cannot tell apart (a box turned by half a turn), the
+                // one nearest the reference: a small preference for short moves and turns.
+                let nearness = MOVE_PENALTY * (dx.hypot(dy) / radius + turn.abs() / PI);
+                if let Some(s) = probe.score(&pose, frames)
+                    && best.is_none_or(|(b, _)| s - nearness > b)
+                {
+                    best = Some((s - nearness, (dx, dy, turn)));
+                }
+            }
+        }
+    }
+    best
+}
+
+impl Corrector {
+    /// Look for `shape` in `views` (camera and full image each) around `reference`, its last
+    /// well-tracked pose. None when too little of it would be in view anywhere.
+    pub fn relocate(
+        &mut self,
+        world: &World,
+        shape: ShapeId,
+        reference: Pose,
+        views: &[(Camera, &[Vec3])],
+        search: &Search,
+    ) -> Result<Option<Found>> {
+        let backgrounds = self.backgrounds_of(world, views)?;
+        let frames = frames_seeing(views, &backgrounds, reference.translation);
+        Ok(search_around(world, shape, reference, &frames, search))
+    }
+
+    /// The static scene's render and coverage for each view's camera.
+    fn backgrounds_of(
+        &mut self,
+        world: &World,
+        views: &[(Camera, &[Vec3])],
+    ) -> Result<Vec<(Vec<Vec3>, Vec<f32>)>> {
+        let mut backgrounds = Vec::with_capacity(views.len());
+        for (camera, _) in views {
+            let (colour, coverage) = self.background_render(world, camera)?;
+            backgrounds.push((colour.to_vec(), coverage.to_vec()));
+        }
+        Ok(backgrounds)
+    }
+
+    /// For each rigid tracked object `wanted`, the best pose within `radius` of where the model
+    /// has it (`Search::local`), with its score and the score where it is.
+    pub fn local_poses(
+        &mut self,
+        world: &World,
+        views: &[(Camera, &[Vec3])],
+        radius: f32,
+        wanted: &[bool],
+    ) -> Result<Vec<Option<Found>>> {
+        if !wanted.iter().any(|w| *w) {
+            return Ok(vec![None; world.shapes.len()]);
+        }
+        let backgrounds = self.backgrounds_of(world, views)?;
+        let search = Search::local(radius, self.config.occluder_threshold);
+        Ok((0..world.shapes.len())
+            .map(|s| {
+                if world.shapes.kind[s] != ShapeKind::Rigid || !wanted.get(s).copied()? {
+                    return None;
+                }
+                let here = world.shapes.pose[s];
+                let frames = frames_seeing(views, &backgrounds, here.translation);
+                search_around(world, s as ShapeId, here, &frames, &search)
+            })
+            .collect())
+    }
+}
+
+/// The views whose camera sees `point`, with their backgrounds.
+fn frames_seeing<'a>(
+    views: &'a [(Camera, &'a [Vec3])],
+    backgrounds: &'a [(Vec<Vec3>, Vec<f32>)],
+    point: Vec3,
+) -> Vec<Frame<'a>> {
+    views
+        .iter()
+        .zip(backgrounds)
+        .filter(|((c, image), _)| {
+            let (u, v, depth) = c.project(point);
+            image.len() == (c.width * c.height) as usize
+                && depth > 0.0
+                && (0.0..c.width as f32).contains(&u)
+                && (0.0..c.height as f32).contains(&v)
+        })
+        .map(|((camera, image), (background, coverage))| Frame {
+            camera,
+            image,
+            background,
+            coverage,
+        })
+        .collect()
+}
+
+/// The coarse-then-fine search for `shape` around `reference` in `frames`.
+fn search_around(
+    world: &World,
+    shape: ShapeId,
+    reference: Pose,
+    frames: &[Frame],
+    search: &Search,
+) -> Option<Found> {
+    let probe = Probe::of(world, shape, search.occluder_threshold);
+    if probe.body.is_empty() || frames.is_empty() {
+        return None;
+    }
+    let here = world.shapes.pose[shape as usize];
+    let thin = |n: usize| probe.thinned(probe.body.len().div_ceil(n.max(1)));
+    let (coarse, fine) = (thin(search.coarse_probes), thin(search.fine_probes));
+    let score_here = fine.score(&here, frames).unwrap_or(0.0);
+    let n = (search.radius / search.step).ceil() as i32;
+    let m = (search.max_turn / search.yaw_step).floor() as i32;
+    let (_, at) = best_on_grid(
+        &coarse,
+        frames,
+        &reference,
+        (0.0, 0.0, 0.0),
+        (n, search.step),
+        (m, search.yaw_step),
+        search.radius,
+    )?;
+    let (_, (dx, dy, yaw)) = best_on_grid(
+        &fine,
+        frames,
+        &reference,
+        at,
+        (search.fine_steps, search.step * search.fine_fraction),
+        (search.fine_steps, search.yaw_step * search.fine_fraction),
+        search.radius + search.step,
+    )?;
+    let pose = candidate(&reference, dx, dy, yaw);
+    fine.score(&pose, frames).map(|score| Found {
+        pose,
+        score,
+        score_here,
+    })
+}
