@@ -282,12 +282,13 @@ fn inputs_status(s: &Shared) -> DiagnosticStatus {
     status(level, "pegs: inputs".into(), message, "pegs", values)
 }
 
-/// A tracked object's state for `/diagnostics`: its name, whether it is lost, and its newest
-/// silhouette agreement (`tracker::health`).
+/// A tracked object's state for `/diagnostics`: its name, whether it is lost, its newest
+/// silhouette agreement and how many times it was relocated (`tracker::health`).
 pub struct ObjectHealth {
     pub name: String,
     pub lost: bool,
     pub agreement: Option<f32>,
+    pub relocations: usize,
 }
 
 fn object_status(o: &ObjectHealth) -> DiagnosticStatus {
@@ -302,7 +303,10 @@ fn object_status(o: &ObjectHealth) -> DiagnosticStatus {
         ),
         false => (DiagnosticStatus::OK, "tracked".to_string()),
     };
-    let values = vec![kv("silhouette_agreement", agreement)];
+    let values = vec![
+        kv("silhouette_agreement", agreement),
+        kv("relocations", o.relocations.to_string()),
+    ];
     status(
         level,
         format!("pegs: object {}", o.name),

@@ -494,6 +494,7 @@ impl Outputs {
                 name: world.shapes.name[shape as usize].clone(),
                 lost: health.is_lost(shape),
                 agreement: health.agreement(shape),
+                relocations: health.relocations(shape),
             })
             .collect();
         let s = self.shared.lock().ok()?;

@@ -83,6 +83,8 @@ pub struct TrackHealth {
     low: Vec<usize>,
     lost: Vec<bool>,
     last: Vec<Option<f32>>,
+    /// Per shape: how many times it was relocated.
+    relocations: Vec<usize>,
 }
 
 impl TrackHealth {
@@ -137,6 +139,16 @@ impl TrackHealth {
         if let Some(n) = self.low.get_mut(s as usize) {
             *n = 0;
         }
+        let s = s as usize;
+        if self.relocations.len() <= s {
+            self.relocations.resize(s + 1, 0);
+        }
+        self.relocations[s] += 1;
+    }
+
+    /// How many times shape `s` was relocated.
+    pub fn relocations(&self, s: ShapeId) -> usize {
+        self.relocations.get(s as usize).copied().unwrap_or(0)
     }
 
     /// Whether shape `s` is lost now.
@@ -174,5 +186,13 @@ mod tests {
         assert!(tick(&mut h, 30, Some(0.9)).is_empty() && tick(&mut h, 31, Some(0.9)).is_empty());
         let found = tick(&mut h, 32, Some(0.9));
         assert!(found.len() == 1 && found[0].change == Change::Found && !h.is_lost(0));
+        // Three low ticks ask for a search; a relocation starts the count over and is counted.
+        for t in 33..36 {
+            assert!(!h.wants_search(0));
+            tick(&mut h, t, Some(0.5));
+        }
+        assert!(h.wants_search(0));
+        h.relocated(0);
+        assert!(!h.wants_search(0) && h.relocations(0) == 1);
     }
 }
