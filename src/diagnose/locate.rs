@@ -297,11 +297,8 @@ mod tests {
     use crate::world::{WorldBuilder, box_lattice};
     use glam::Vec3;
 
-    /// A box at rest is set sliding at tick 40 by something the physics does not know (its
-    /// velocity is set): the window around the kick is one where it sped up; a window while it
-    /// slows down on its own is not.
-    #[test]
-    fn a_window_where_something_unmodelled_sets_the_object_moving_is_flagged_as_sped_up() {
+    /// A 6 x 4 x 2 cm box resting on the ground.
+    fn resting_box() -> (crate::world::World, crate::world::ShapeId) {
         let mut b = WorldBuilder::new();
         let shape = b.add_rigid(
             "box",
@@ -311,7 +308,15 @@ mod tests {
             Pose::from_translation(Vec3::new(0.0, 0.0, 0.0151)),
             Vec3::ONE,
         );
-        let world = b.build();
+        (b.build(), shape)
+    }
+
+    /// A box at rest is set sliding at tick 40 by something the physics does not know (its
+    /// velocity is set): the window around the kick is one where it sped up; a window while it
+    /// slows down on its own is not.
+    #[test]
+    fn a_window_where_something_unmodelled_sets_the_object_moving_is_flagged_as_sped_up() {
+        let (world, shape) = resting_box();
         // A slippery table: it is still sliding, slowing, a second after the kick.
         let mut physics = PhysicsConfig::default();
         physics.ground.static_friction = 0.04;
@@ -342,16 +347,7 @@ mod tests {
     /// mismatch; with it they are left out, since no physics makes such a jump.
     #[test]
     fn a_relocation_is_no_mismatch_of_the_physics() {
-        let mut b = WorldBuilder::new();
-        let shape = b.add_rigid(
-            "box",
-            &box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01),
-            0.005,
-            0.005,
-            Pose::from_translation(Vec3::new(0.0, 0.0, 0.0151)),
-            Vec3::ONE,
-        );
-        let world = b.build();
+        let (world, shape) = resting_box();
         let physics = PhysicsConfig::default();
         let mut trace =
             Trace::simulated(world, physics.clone(), physics.clone(), 70, shape, |_| None);
