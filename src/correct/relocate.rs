@@ -1,12 +1,15 @@
-//! Re-localisation: find a tracked object again in the images once the model has lost it (the
-//! rendered object no longer overlaps the observed one, so visual forces have no gradient left to
-//! follow). Candidate poses are the object's last well-tracked pose moved across the table and
-//! turned about the vertical; each is scored by how many of the object's Gaussians, placed there,
-//! land on pixels that look more like their own colour than like the static scene rendered there
-//! (the relative test of `agreement`), over every camera. A coarse grid over the search radius,
-//! then a fine one around its best.
+//! Pose search in the images, for what the Gaussians' forces cannot do: re-localise an object the
+//! model has lost (the rendered object no longer overlaps the observed one, so visual forces have
+//! no gradient left to follow), and measure the whole offset of one the model holds visibly off
+//! (Adam's bounded steps cap those forces; `Corrector::local_poses` feeds the pose pull).
+//! Candidate poses are a reference pose moved across the table and turned about the vertical; each
+//! is scored by how many of the object's Gaussians, placed there, land on pixels that look more
+//! like their own colour than like the static scene rendered there (the relative test of
+//! `agreement`), the middle camera's share. A coarse grid over the search radius, then a fine one
+//! around its best; candidates over another tracked object are skipped.
 //!
-//! Owns the search and its score; moving the object and reporting the jump is the tracker's.
+//! Owns the search and its score; pulling or moving the object, and reporting a jump, are the
+//! correction's (`pose_pulls`) and the tracker's.
 
 use super::Corrector;
 use crate::math::Pose;
@@ -17,12 +20,12 @@ use glam::{Quat, Vec3};
 use std::collections::HashSet;
 use std::f32::consts::PI;
 
-/// How the search looks for a lost object.
+/// How the search looks for an object: `default()` for a lost one, `local` around the model's.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Search {
     /// Furthest (m) from the last well-tracked position a candidate lies.
     pub radius: f32,
-    /// Coarse grid step (m) and yaw step (rad); the fine grid is a fifth of them.
+    /// Coarse grid step (m) and yaw step (rad).
     pub step: f32,
     pub yaw_step: f32,
     /// Largest turn (rad) either way about the vertical.
