@@ -260,13 +260,14 @@ fn a_box_hidden_behind_the_arm_is_recovered_after_it_reappears() {
     );
     // Behind the arm the model cannot see the hidden pull and falls behind; once the box is back
     // in view, visual forces pull the model onto it again, back to the lag it had before the arm
-    // came (measured: 6.7 mm at 1 s, 32 mm at 2.4 s, 6.0 mm over the last second).
+    // came (measured: 7.9 mm at 1 s, 15.7 mm at 2.4 s, 5.1 mm over the last second; before the
+    // pose pull, which holds it closer while two cameras still see it: 6.7, 32 and 6.0 mm).
     assert!(
         hidden_end > 0.015,
         "the occlusion must cost something: {hidden_end} m"
     );
     assert!(
-        after < 0.01 && after < 0.25 * hidden_end,
+        after < 0.01 && after < 0.5 * hidden_end && after < before + 0.001,
         "not recovered: {after} m"
     );
     assert!(
