@@ -202,14 +202,11 @@ impl Probe {
         let mut shares = Vec::with_capacity(frames.len());
         let mut seen_anywhere = 0;
         for f in frames {
-            let (w, h) = (f.camera.width as f32, f.camera.height as f32);
             let (mut seen, mut matched) = (0usize, 0usize);
             for (b, c) in self.body.iter().zip(&self.colour) {
-                let (u, v, depth) = f.camera.project(pose.transform_point(*b));
-                if !(depth > 0.0 && u >= 0.0 && v >= 0.0 && u < w && v < h) {
+                let Some(k) = f.camera.pixel_of(pose.transform_point(*b)) else {
                     continue;
-                }
-                let k = v as usize * f.camera.width as usize + u as usize;
+                };
                 let (o, bg) = (f.image[k], f.background[k]);
                 if let Some((palette, threshold)) = &self.occluders
                     && !super::explained(o, bg, palette, *threshold)
@@ -308,18 +305,24 @@ impl Corrector {
         Ok(search_around(world, shape, reference, &frames, search))
     }
 
-    /// The static scene's render and coverage for each view's camera.
+    /// The static scene's render and coverage for each view's camera, from the cache (rendered
+    /// where missing; None only for a camera the cache dropped again, with more views than it
+    /// keeps).
     fn backgrounds_of(
         &mut self,
         world: &World,
         views: &[(Camera, &[Vec3])],
-    ) -> Result<Vec<(Vec<Vec3>, Vec<f32>)>> {
-        let mut backgrounds = Vec::with_capacity(views.len());
+    ) -> Result<Vec<Option<Background<'_>>>> {
         for (camera, _) in views {
-            let (colour, coverage) = self.background_render(world, camera)?;
-            backgrounds.push((colour.to_vec(), coverage.to_vec()));
+            self.background_render(world, camera)?;
         }
-        Ok(backgrounds)
+        Ok(views
+            .iter()
+            .map(|(camera, _)| {
+                let (_, colour, coverage) = self.backgrounds.iter().find(|(c, ..)| c == camera)?;
+                Some((&colour[..], &coverage[..]))
+            })
+            .collect())
     }
 
     /// For each rigid tracked object `wanted`, the best pose within `radius` of where the model
@@ -334,8 +337,8 @@ impl Corrector {
         if !wanted.iter().any(|w| *w) {
             return Ok(vec![None; world.shapes.len()]);
         }
-        let backgrounds = self.backgrounds_of(world, views)?;
         let search = Search::local(radius, self.config.occluder_threshold);
+        let backgrounds = self.backgrounds_of(world, views)?;
         Ok((0..world.shapes.len())
             .map(|s| {
                 if world.shapes.kind[s] != ShapeKind::Rigid || !wanted.get(s).copied()? {
@@ -349,27 +352,27 @@ impl Corrector {
     }
 }
 
+/// A camera's static-scene render: colour and coverage, full frame.
+type Background<'a> = (&'a [Vec3], &'a [f32]);
+
 /// The views whose camera sees `point`, with their backgrounds.
 fn frames_seeing<'a>(
     views: &'a [(Camera, &'a [Vec3])],
-    backgrounds: &'a [(Vec<Vec3>, Vec<f32>)],
+    backgrounds: &[Option<Background<'a>>],
     point: Vec3,
 ) -> Vec<Frame<'a>> {
     views
         .iter()
         .zip(backgrounds)
-        .filter(|((c, image), _)| {
-            let (u, v, depth) = c.project(point);
-            image.len() == (c.width * c.height) as usize
-                && depth > 0.0
-                && (0.0..c.width as f32).contains(&u)
-                && (0.0..c.height as f32).contains(&v)
-        })
-        .map(|((camera, image), (background, coverage))| Frame {
-            camera,
-            image,
-            background,
-            coverage,
+        .filter_map(|((camera, image), background)| {
+            let (background, coverage) = (*background)?;
+            let whole = image.len() == (camera.width * camera.height) as usize;
+            (whole && camera.pixel_of(point).is_some()).then_some(Frame {
+                camera,
+                image,
+                background,
+                coverage,
+            })
         })
         .collect()
 }

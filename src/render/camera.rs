@@ -72,6 +72,16 @@ impl Camera {
         )
     }
 
+    /// The row-major index of the pixel a world point projects into; None behind the camera or
+    /// outside the image.
+    pub fn pixel_of(&self, p: Vec3) -> Option<usize> {
+        let (u, v, depth) = self.project(p);
+        let inside = depth > 0.0
+            && (0.0..self.width as f32).contains(&u)
+            && (0.0..self.height as f32).contains(&v);
+        inside.then(|| v as usize * self.width as usize + u as usize)
+    }
+
     pub fn rotation(&self) -> Mat3 {
         Mat3::from_quat(self.world_to_camera.rotation)
     }

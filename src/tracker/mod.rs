@@ -141,8 +141,6 @@ impl Tracker {
         Ok(report)
     }
 
-    /// One tick of the physics alone, with the robot on its current trajectory (a ground-truth
-    /// world, or a tracker whose cameras are all gone).
     /// Objects whose silhouettes have disagreed with the images for a few ticks are searched for
     /// around where they were last well tracked (`correct::relocate`), and moved where the
     /// images show them; each move is an event.
@@ -208,6 +206,8 @@ impl Tracker {
         Ok(events)
     }
 
+    /// One tick of the physics alone, with the robot on its current trajectory (a ground-truth
+    /// world, or a tracker whose cameras are all gone).
     pub fn predict(&mut self) -> Result<()> {
         self.scene.advance(&mut self.solver)
     }
