@@ -245,10 +245,8 @@ pub struct Corrector {
     adam: [Adam; 4],
     /// Each Gaussian's displacement at the previous tick (for the derivative term).
     previous: Vec<Vec3>,
-    /// Each particle's pull towards its object's best local pose at the previous tick (likewise).
-    previous_pull: Vec<Vec3>,
-    /// Each particle's pull integrated over the ticks it has lasted (s m; zero once it stops).
-    pull_integral: Vec<Vec3>,
+    /// Each particle's pose pull across ticks (`PullState`).
+    pulls: Vec<PullState>,
     /// Each shape's silhouette agreement, averaged over ticks (`AGREEMENT_SMOOTHING`).
     agreement_avg: Vec<f32>,
     /// Each shape's pose pull: engaged or not, and the convincing offset found at the previous
@@ -274,8 +272,7 @@ impl Corrector {
             renderer,
             adam: [means, a.clone(), a.clone(), a],
             previous: Vec::new(),
-            previous_pull: Vec::new(),
-            pull_integral: Vec::new(),
+            pulls: Vec::new(),
             agreement_avg: Vec::new(),
             latch: Vec::new(),
             turn: 0,
@@ -545,28 +542,12 @@ impl Corrector {
                 .map(|(s, (found, latch))| latch.update(&world.shapes.pose[s], *found))
                 .collect();
             let pulls = pose_pulls(world, &steady, c.pose_dead_zone);
-            self.previous_pull.resize(pulls.len(), Vec3::ZERO);
-            self.pull_integral.resize(pulls.len(), Vec3::ZERO);
-            for (i, d) in pulls.iter().enumerate() {
-                // A pull that starts has no rate yet: taking its first offset as one (offset over
-                // one tick) kicked the object three times harder than the gain, and on a slippery
-                // table each new start of the pull threw it past its object (a 4 cm limit cycle in
-                // pegs's concealed_weight).
-                let rate = match self.previous_pull[i] == Vec3::ZERO {
-                    true => Vec3::ZERO,
-                    false => (*d - self.previous_pull[i]) / dt,
-                };
-                self.previous_pull[i] = *d;
-                self.pull_integral[i] = match *d == Vec3::ZERO {
-                    true => Vec3::ZERO,
-                    false => self.pull_integral[i] + *d * dt,
-                };
+            self.pulls.resize(pulls.len(), PullState::default());
+            for (i, (d, state)) in pulls.iter().zip(&mut self.pulls).enumerate() {
+                let accel = state.acceleration(*d, &c, dt);
                 if *d == Vec3::ZERO || world.particles.inv_mass[i] <= 0.0 {
                     continue;
                 }
-                let accel = c.pose_gain * *d
-                    + c.pose_damping * rate
-                    + c.pose_integral * self.pull_integral[i];
                 let f = accel / world.particles.inv_mass[i];
                 forces[i] += f;
                 let shape = world.particles.shape[i] as usize;
@@ -759,6 +740,37 @@ impl PullLatch {
         };
         self.previous = now;
         found.filter(|_| self.engaged)
+    }
+}
+
+/// One particle's pose pull across ticks: its pull at the previous tick and the pull integrated
+/// over the ticks it has lasted (s m).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PullState {
+    previous: Vec3,
+    integral: Vec3,
+}
+
+impl PullState {
+    /// The acceleration (m/s^2) of this tick's pull `d` (m, `pose_pulls`): `pose_gain x d +
+    /// pose_damping x its rate + pose_integral x its integral`. A zero pull ends it and clears
+    /// the state.
+    pub fn acceleration(&mut self, d: Vec3, c: &CorrectConfig, dt: f32) -> Vec3 {
+        if d == Vec3::ZERO {
+            *self = Self::default();
+            return Vec3::ZERO;
+        }
+        // A pull that starts has no rate yet: taking its first offset as one (the offset over one
+        // tick) kicked the object three times harder than the gain, and on a slippery table each
+        // new start of the pull threw it past its object (a 4 cm limit cycle in pegs's
+        // concealed_weight).
+        let rate = match self.previous == Vec3::ZERO {
+            true => Vec3::ZERO,
+            false => (d - self.previous) / dt,
+        };
+        self.previous = d;
+        self.integral += d * dt;
+        c.pose_gain * d + c.pose_damping * rate + c.pose_integral * self.integral
     }
 }
 
@@ -1113,5 +1125,27 @@ mod tests {
             let wander = found_at(&here, side * 0.008, side * 0.3);
             assert_eq!(latch.update(&here, Some(wander)), None, "tick {k}");
         }
+    }
+
+    #[test]
+    fn a_pose_pull_that_starts_accelerates_by_its_gain_alone_then_damps_its_change() {
+        let c = CorrectConfig::default();
+        let dt = 1.0 / 30.0;
+        let mut state = PullState::default();
+        let d = Vec3::new(0.02, 0.0, 0.0);
+        let first = state.acceleration(d, &c, dt);
+        let expected = c.pose_gain * d + c.pose_integral * d * dt;
+        assert!(first.distance(expected) < 1e-5, "{first} vs {expected}");
+        // Half the offset a tick later: the rate term brakes the approach.
+        let second = state.acceleration(0.5 * d, &c, dt);
+        let rate = (0.5 * d - d) / dt;
+        let expected =
+            c.pose_gain * 0.5 * d + c.pose_damping * rate + c.pose_integral * 1.5 * d * dt;
+        assert!(second.distance(expected) < 1e-4, "{second} vs {expected}");
+        assert!(second.x < 0.0, "the damping outweighs the gain: {second}");
+        // A zero pull ends it: the next start again has no rate and no integral.
+        assert_eq!(state.acceleration(Vec3::ZERO, &c, dt), Vec3::ZERO);
+        let again = state.acceleration(d, &c, dt);
+        assert!(again.distance(first) < 1e-5, "{again} vs {first}");
     }
 }
