@@ -12,7 +12,6 @@ pub mod adam;
 pub mod agreement;
 pub mod relocate;
 
-use crate::math::Pose;
 use crate::render::{
     self, Backend, Camera, GaussianCloud, PixelGrads, RenderSettings, Renderer, Roi,
 };
@@ -249,9 +248,6 @@ pub struct Corrector {
     pulls: Vec<PullState>,
     /// Each shape's silhouette agreement, averaged over ticks (`AGREEMENT_SMOOTHING`).
     agreement_avg: Vec<f32>,
-    /// Each shape's pose pull: engaged or not, and the convincing offset found at the previous
-    /// tick (`PullLatch`).
-    latch: Vec<PullLatch>,
     /// The camera the next iteration starts with (`cameras_per_iteration` > 0).
     turn: usize,
     /// The static scene rendered into each camera seen so far (for the occluder test).
@@ -274,7 +270,6 @@ impl Corrector {
             previous: Vec::new(),
             pulls: Vec::new(),
             agreement_avg: Vec::new(),
-            latch: Vec::new(),
             turn: 0,
             backgrounds: Vec::new(),
         })
@@ -534,14 +529,7 @@ impl Corrector {
                 .collect();
             let poses = self.local_poses(world, &full, c.pose_search_radius, &wanted)?;
             lap(&mut stats, "pose_search", &mut clock);
-            self.latch.resize(poses.len(), PullLatch::default());
-            let steady: Vec<Option<relocate::Found>> = poses
-                .iter()
-                .zip(&mut self.latch)
-                .enumerate()
-                .map(|(s, (found, latch))| latch.update(&world.shapes.pose[s], *found))
-                .collect();
-            let pulls = pose_pulls(world, &steady, c.pose_dead_zone);
+            let pulls = pose_pulls(world, &poses, c.pose_dead_zone);
             self.pulls.resize(pulls.len(), PullState::default());
             for (i, (d, state)) in pulls.iter().zip(&mut self.pulls).enumerate() {
                 let accel = state.acceleration(*d, &c, dt);
@@ -713,36 +701,6 @@ fn convincing(found: &relocate::Found) -> bool {
     found.score >= POSE_MIN_SCORE && found.score >= found.score_here + POSE_MARGIN
 }
 
-/// When an object's pose pull runs. It engages once the images show the object at the same
-/// offset (`relocate::Offset::repeats`) on two ticks running, and stays engaged while each tick
-/// finds a convincing pose. A single tick's best candidate can be noise of the grid: in small or
-/// blurred images the object's own pose scores little better than its neighbours, and pulling
-/// towards whichever won threw a well-tracked box 6 cm in pegs's concealed control.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct PullLatch {
-    engaged: bool,
-    previous: Option<relocate::Offset>,
-}
-
-impl PullLatch {
-    /// This tick's best local pose for an object the model has at `here`: the pose to pull
-    /// towards, or None.
-    pub fn update(
-        &mut self,
-        here: &Pose,
-        found: Option<relocate::Found>,
-    ) -> Option<relocate::Found> {
-        let found = found.filter(convincing);
-        let now = found.map(|f| relocate::Offset::between(here, &f.pose));
-        self.engaged = match now {
-            Some(now) => self.engaged || self.previous.is_some_and(|b| now.repeats(&b)),
-            None => false,
-        };
-        self.previous = now;
-        found.filter(|_| self.engaged)
-    }
-}
-
 /// One particle's pose pull across ticks: its pull at the previous tick and the pull integrated
 /// over the ticks it has lasted (s m).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -774,13 +732,13 @@ impl PullState {
     }
 }
 
-/// Per particle: how far the object's pose to pull towards (`PullLatch::update` of
-/// `Corrector::local_poses`) would move it, less the dead zone (scaled so that the furthest
-/// particle's move shrinks by `dead_zone`); zero where there is none.
+/// Per particle: how far the object's best local pose (`Corrector::local_poses`) would move it,
+/// less the dead zone (scaled so that the furthest particle's move shrinks by `dead_zone`); zero
+/// where the pose found is not `convincing`.
 pub fn pose_pulls(world: &World, poses: &[Option<relocate::Found>], dead_zone: f32) -> Vec<Vec3> {
     let mut pulls = vec![Vec3::ZERO; world.particles.len()];
     for (s, found) in poses.iter().enumerate() {
-        let Some(found) = found else {
+        let Some(found) = found.filter(convincing) else {
             continue;
         };
         let here = world.shapes.pose[s];
@@ -900,6 +858,7 @@ fn crop(image: &[Vec3], width: u32, w: Roi) -> Vec<Vec3> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::Pose;
     use crate::render::cpu::CpuRenderer;
     use crate::world::{WorldBuilder, box_lattice};
 
@@ -1083,48 +1042,6 @@ mod tests {
             assert_eq!(c.background(&world, &camera).unwrap().len(), 16 * 9);
         }
         assert_eq!(c.backgrounds.len(), MAX_BACKGROUNDS);
-    }
-
-    /// The pose found `dx` m along x and turned `turn` rad from `here`, scoring 0.9 against 0.6.
-    fn found_at(here: &Pose, dx: f32, turn: f32) -> relocate::Found {
-        relocate::Found {
-            pose: Pose::new(
-                here.translation + Vec3::new(dx, 0.0, 0.0),
-                glam::Quat::from_rotation_z(turn) * here.rotation,
-            ),
-            score: 0.9,
-            score_here: 0.6,
-        }
-    }
-
-    #[test]
-    fn a_pose_pull_engages_on_an_offset_the_images_show_twice_and_holds_while_it_convinces() {
-        let here = Pose::new(Vec3::new(0.5, 0.0, 0.025), glam::Quat::from_rotation_z(0.3));
-        let mut latch = PullLatch::default();
-        assert_eq!(latch.update(&here, Some(found_at(&here, 0.010, 0.0))), None);
-        let again = found_at(&here, 0.014, 0.05);
-        assert_eq!(latch.update(&here, Some(again)), Some(again));
-        // Engaged, a pose far from the last still pulls while it convinces...
-        let far = found_at(&here, -0.03, -0.3);
-        assert_eq!(latch.update(&here, Some(far)), Some(far));
-        // ...and one that barely beats the model's own pose ends the pull.
-        let weak = relocate::Found {
-            score: 0.61,
-            ..found_at(&here, 0.02, 0.0)
-        };
-        assert_eq!(latch.update(&here, Some(weak)), None);
-        assert_eq!(latch.update(&here, Some(found_at(&here, 0.02, 0.0))), None);
-    }
-
-    #[test]
-    fn a_best_pose_that_wanders_from_tick_to_tick_never_pulls() {
-        let here = Pose::from_translation(Vec3::new(0.5, 0.0, 0.025));
-        let mut latch = PullLatch::default();
-        for k in 0..20 {
-            let side = if k % 2 == 0 { 1.0 } else { -1.0 };
-            let wander = found_at(&here, side * 0.008, side * 0.3);
-            assert_eq!(latch.update(&here, Some(wander)), None, "tick {k}");
-        }
     }
 
     #[test]

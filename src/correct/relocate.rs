@@ -84,42 +84,6 @@ pub struct Found {
     pub score_here: f32,
 }
 
-/// Where a found pose lies from where the model has the object: moved on the table (m) and
-/// turned about the vertical (rad).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Offset {
-    pub shift: Vec3,
-    pub turn: f32,
-}
-
-/// Two offsets found on successive ticks repeat when they differ by at most this much (m, rad) or
-/// this share of the newer one, whichever is larger. A model that holds its object back shows it
-/// at about the same offset tick after tick (growing while the object runs away: 7 mm a tick on
-/// MuJoCo's slippery table, the turn within a fine grid step or two); where nothing is wrong, the
-/// best candidate of the grid is noise that wanders from one cell to the next (pegs's blue box at
-/// rest in 160 x 90 images: 3-10 mm and up to 18 degrees, either way).
-const REPEAT_SHIFT: f32 = 0.006;
-const REPEAT_TURN: f32 = 0.2;
-const REPEAT_SHARE: f32 = 0.5;
-
-impl Offset {
-    /// `to` seen from `from`.
-    pub fn between(from: &Pose, to: &Pose) -> Self {
-        let (turn, _, _) = (to.rotation * from.rotation.inverse()).to_euler(glam::EulerRot::ZYX);
-        Self {
-            shift: to.translation - from.translation,
-            turn,
-        }
-    }
-
-    /// Whether `self` confirms `before` (see `REPEAT_SHIFT`).
-    pub fn repeats(&self, before: &Offset) -> bool {
-        let shift = REPEAT_SHIFT.max(REPEAT_SHARE * self.shift.length());
-        let turn = REPEAT_TURN.max(REPEAT_SHARE * self.turn.abs());
-        self.shift.distance(before.shift) <= shift && (self.turn - before.turn).abs() <= turn
-    }
-}
-
 /// One camera's image and the static scene rendered into it with its coverage (full frames,
 /// row-major).
 struct Frame<'a> {
