@@ -711,21 +711,19 @@ pub struct PullState {
 
 impl PullState {
     /// The acceleration (m/s^2) of this tick's pull `d` (m, `pose_pulls`): `pose_gain x d +
-    /// pose_damping x its rate + pose_integral x its integral`. A zero pull ends it and clears
-    /// the state.
+    /// pose_damping x its rate + pose_integral x its integral`, the rate and integral since the
+    /// pull started. A zero pull ends it and clears the state.
     pub fn acceleration(&mut self, d: Vec3, c: &CorrectConfig, dt: f32) -> Vec3 {
         if d == Vec3::ZERO {
             *self = Self::default();
             return Vec3::ZERO;
         }
-        // A pull that starts has no rate yet: taking its first offset as one (the offset over one
-        // tick) kicked the object three times harder than the gain, and on a slippery table each
-        // new start of the pull threw it past its object (a 4 cm limit cycle in pegs's
-        // concealed_weight).
-        let rate = match self.previous == Vec3::ZERO {
-            true => Vec3::ZERO,
-            false => (d - self.previous) / dt,
-        };
+        // A pull that starts takes its whole offset as its first change: a kick of
+        // `pose_damping / dt` (three times the gain at 30 Hz) that starts the chase of an object
+        // the model holds back. On a slippery table each new start can throw the object past its
+        // target (pegs's concealed_weight rings 4 cm; without the kick it tracks at 2.3 mm, but
+        // MuJoCo's corded bar of tests/mujoco.rs is then left 10.6 mm off, over its bar).
+        let rate = (d - self.previous) / dt;
         self.previous = d;
         self.integral += d * dt;
         c.pose_gain * d + c.pose_damping * rate + c.pose_integral * self.integral
@@ -1045,14 +1043,15 @@ mod tests {
     }
 
     #[test]
-    fn a_pose_pull_that_starts_accelerates_by_its_gain_alone_then_damps_its_change() {
+    fn a_pose_pull_grows_with_its_offset_its_change_and_its_integral_and_ends_at_zero() {
         let c = CorrectConfig::default();
         let dt = 1.0 / 30.0;
         let mut state = PullState::default();
         let d = Vec3::new(0.02, 0.0, 0.0);
+        // A pull that starts changes from nothing to `d` in one tick.
         let first = state.acceleration(d, &c, dt);
-        let expected = c.pose_gain * d + c.pose_integral * d * dt;
-        assert!(first.distance(expected) < 1e-5, "{first} vs {expected}");
+        let expected = c.pose_gain * d + c.pose_damping * d / dt + c.pose_integral * d * dt;
+        assert!(first.distance(expected) < 1e-4, "{first} vs {expected}");
         // Half the offset a tick later: the rate term brakes the approach.
         let second = state.acceleration(0.5 * d, &c, dt);
         let rate = (0.5 * d - d) / dt;
@@ -1060,9 +1059,9 @@ mod tests {
             c.pose_gain * 0.5 * d + c.pose_damping * rate + c.pose_integral * 1.5 * d * dt;
         assert!(second.distance(expected) < 1e-4, "{second} vs {expected}");
         assert!(second.x < 0.0, "the damping outweighs the gain: {second}");
-        // A zero pull ends it: the next start again has no rate and no integral.
+        // A zero pull ends it: the next start has no integral left.
         assert_eq!(state.acceleration(Vec3::ZERO, &c, dt), Vec3::ZERO);
         let again = state.acceleration(d, &c, dt);
-        assert!(again.distance(first) < 1e-5, "{again} vs {first}");
+        assert!(again.distance(first) < 1e-4, "{again} vs {first}");
     }
 }
