@@ -604,8 +604,8 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
             use pegs::diagnose::report::Verdict;
             let why = match o.verdict {
                 Verdict::NotEnoughEvidence => format!(
-                    "not enough evidence ({} windows of free motion to fit on, {} to judge on)",
-                    o.train_windows, o.heldout_windows
+                    "not enough evidence ({} windows of motion, too few to cross-validate on)",
+                    o.windows
                 ),
                 Verdict::ExplainedByAnother => format!(
                     "explained by {}",

@@ -30,12 +30,12 @@ fn span(values: impl Iterator<Item = f64>) -> (f64, f64) {
 }
 
 /// Corrective force (x, y) over time above, short-horizon prediction error below; mismatch
-/// windows shaded, the held-out part marked.
+/// windows shaded, where each fold of the cross-validation starts marked.
 pub fn residual_over_time(
     path: &Path,
     samples: &[Sample],
     located: &Located,
-    heldout_from: f64,
+    fold_starts: &[f64],
 ) -> Result<()> {
     ensure_font();
     let e = err(path);
@@ -76,10 +76,11 @@ pub fn residual_over_time(
             .map_err(|x| e(&x))?;
     }
     chart
-        .draw_series([PathElement::new(
-            vec![(heldout_from, f_lo), (heldout_from, f_hi)],
-            BLACK.stroke_width(1),
-        )])
+        .draw_series(
+            fold_starts
+                .iter()
+                .map(|&t| PathElement::new(vec![(t, f_lo), (t, f_hi)], BLACK.stroke_width(1))),
+        )
         .map_err(|x| e(&x))?;
     for (k, (label, get)) in [
         ("x", (|s: &Sample| s.force.x) as fn(&Sample) -> f32),
@@ -137,10 +138,11 @@ pub fn residual_over_time(
         )])
         .map_err(|x| e(&x))?;
     chart
-        .draw_series([PathElement::new(
-            vec![(heldout_from, 0.0), (heldout_from, e_hi)],
-            BLACK.stroke_width(1),
-        )])
+        .draw_series(
+            fold_starts
+                .iter()
+                .map(|&t| PathElement::new(vec![(t, 0.0), (t, e_hi)], BLACK.stroke_width(1))),
+        )
         .map_err(|x| e(&x))?;
     chart
         .draw_series(LineSeries::new(
@@ -268,20 +270,20 @@ pub fn residual_vs_feature(
     Ok(())
 }
 
-/// The tracked path on the table from `heldout_from`, with the open-loop predictions from the
-/// held-out windows before (base model) and after (augmented model).
+/// The tracked path on the table from `from`, with the open-loop predictions from the judged
+/// windows before (base model) and after (augmented model).
 pub fn paths(
     path: &Path,
     trace: &Trace,
     shape: ShapeId,
-    heldout_from: f64,
+    from: f64,
     before: &[Prediction],
     after: &[Prediction],
 ) -> Result<()> {
     ensure_font();
     let e = err(path);
     let tracked: Vec<(f64, f64)> = (0..trace.states.len())
-        .filter(|&k| trace.states[k].time >= heldout_from)
+        .filter(|&k| trace.states[k].time >= from)
         .map(|k| trace.centroid(shape, k))
         .map(|c| (c.x as f64, c.y as f64))
         .collect();

@@ -1,9 +1,9 @@
 //! Model and name by simulation: each candidate effect is a family of physics terms with one
 //! physical parameter; the parameter is fitted by running the physics open loop (no visual
 //! forces) from tracked states and matching where tracking found the object one horizon later.
-//! Families are fitted on the first part of the recording and judged on the held-out rest; one
-//! is named only when it clearly cuts the held-out prediction error. Intervals come from a
-//! bootstrap over the fitting windows.
+//! A family is fitted on some windows and judged on held-out ones (the study cross-validates:
+//! each fold of windows is held out in turn); one is named only when it clearly cuts the
+//! held-out prediction error. Intervals come from a bootstrap over the fitting windows.
 
 use crate::physics::Effect;
 use crate::physics::PhysicsConfig;

@@ -36,23 +36,20 @@ pub enum Verdict {
     Named,
     /// Its mismatches are explained by an effect named on another object.
     ExplainedByAnother,
-    /// Enough windows to fit and to judge on, and no candidate passed.
+    /// Enough windows to cross-validate on, and no candidate passed.
     NoMissingPhysics,
-    /// Too few windows of free motion to fit or to judge on: nothing can be said either way.
+    /// Too few windows of motion to cut into folds: nothing can be said either way.
     NotEnoughEvidence,
 }
 
-/// Fewer windows than this to fit on, or to judge on, is not enough evidence to say "no missing
-/// physics".
-pub const MIN_WINDOWS: usize = 3;
-
 impl Verdict {
-    pub fn of(named: bool, explained_by_another: bool, train: usize, heldout: usize) -> Self {
+    /// `folds`: how many folds the object's windows were cut into (none when too few).
+    pub fn of(named: bool, explained_by_another: bool, folds: usize) -> Self {
         if named {
             Verdict::Named
         } else if explained_by_another {
             Verdict::ExplainedByAnother
-        } else if train < MIN_WINDOWS || heldout < MIN_WINDOWS {
+        } else if folds < 2 {
             Verdict::NotEnoughEvidence
         } else {
             Verdict::NoMissingPhysics
@@ -64,7 +61,7 @@ impl Verdict {
 #[derive(Clone, Debug, Serialize)]
 pub struct ObjectReport {
     pub object: String,
-    /// What was concluded, on how much evidence (`train_windows`, `heldout_windows`).
+    /// What was concluded, on how much evidence (`windows`, `folds`).
     pub verdict: Verdict,
     pub mismatch: Vec<Mismatch>,
     /// Windows where predictions missed but no candidate effect explains it (contact transients,
@@ -82,15 +79,16 @@ pub struct ObjectReport {
     /// The named effect, or "none" (no significant missing physics).
     pub effect: String,
     pub parameters: Vec<Parameter>,
-    /// Fraction of the held-out open-loop squared error the named effect removes.
+    /// Fraction of the open-loop squared error the named effect removes, cross-validated.
     pub explained_fraction: f64,
     /// Fraction of the held-out corrective force the same effect explains in the residual
     /// regression, when it has a regression counterpart.
     pub residual_explained_fraction: Option<f64>,
-    /// Held-out data starts here (s).
-    pub heldout_from: f64,
-    pub train_windows: usize,
-    pub heldout_windows: usize,
+    /// Windows of motion the families were fitted and judged on (1 s open-loop predictions).
+    pub windows: usize,
+    /// The folds of the cross-validation: each one's time span (s), from its first window's
+    /// start to its last one's end. Empty: too few windows to judge on.
+    pub folds: Vec<[f64; 2]>,
     /// Every candidate family fitted, best held-out gain first.
     pub candidates: Vec<Fit>,
     /// The named family's fit on the replay with the current model, before its parameters were
@@ -262,7 +260,9 @@ fn name_section(md: &mut String, o: &ObjectReport) {
     } else if o.effect == "none" {
         let _ = writeln!(
             md,
-            "**Name.** No significant missing physics: no candidate effect cuts the held-out 1 s prediction error enough.\n"
+            "**Name.** No significant missing physics: no candidate effect cuts the 1 s prediction error enough on windows it was not fitted on ({} windows in {} folds).\n",
+            o.windows,
+            o.folds.len()
         );
     } else {
         let params: Vec<String> = o
@@ -284,8 +284,10 @@ fn name_section(md: &mut String, o: &ObjectReport) {
         );
         let _ = write!(
             md,
-            "It removes {:.0} % of the held-out open-loop error",
-            o.explained_fraction * 100.0
+            "It removes {:.0} % of the open-loop error on windows it was not fitted on ({} windows in {} folds, each predicted with the parameter fitted on the others)",
+            o.explained_fraction * 100.0,
+            o.windows,
+            o.folds.len()
         );
         if let Some(f) = o.residual_explained_fraction {
             let _ = write!(
@@ -309,8 +311,8 @@ fn name_section(md: &mut String, o: &ObjectReport) {
 fn not_enough_evidence(md: &mut String, o: &ObjectReport) {
     let _ = write!(
         md,
-        "**Name.** Not enough evidence: {} window(s) of free motion to fit on and {} to judge on (at least {MIN_WINDOWS} of each are needed; windows where the robot touches {} are left out). ",
-        o.train_windows, o.heldout_windows, o.object
+        "**Name.** Not enough evidence: {} window(s) in which {} moves, too few to cut into folds that judge a fit on windows it was not fitted on. ",
+        o.windows, o.object
     );
     let leading = o
         .candidates
@@ -318,7 +320,7 @@ fn not_enough_evidence(md: &mut String, o: &ObjectReport) {
         .filter(|f| f.train_gain().is_finite())
         .max_by(|a, b| a.train_gain().total_cmp(&b.train_gain()));
     match leading {
-        Some(f) if o.train_windows > 0 => {
+        Some(f) => {
             let _ = write!(
                 md,
                 "The leading candidate is {} ({} = {:.4} {}), cutting the fitted windows' error by {:.0} %. ",
@@ -329,25 +331,35 @@ fn not_enough_evidence(md: &mut String, o: &ObjectReport) {
                 100.0 * f.train_gain()
             );
         }
-        _ => md.push_str("No candidate could be fitted. "),
+        None => md.push_str("No candidate could be fitted. "),
     }
     let _ = writeln!(
         md,
-        "What would settle it: {} moving without the robot touching it (sliding after a strike, colliding, coming to rest) both before and after {:.2} s.\n",
-        o.object, o.heldout_from
+        "What would settle it: {} moving for longer or more often (pushed, sliding, colliding, coming to rest), so that its motion spans several seconds.\n",
+        o.object
     );
 }
 
 /// Every candidate family's fit, and the residual regression.
 fn candidates_section(md: &mut String, o: &ObjectReport) {
+    let spans: Vec<String> = o
+        .folds
+        .iter()
+        .map(|f| format!("{:.2}-{:.2} s", f[0], f[1]))
+        .collect();
     let _ = writeln!(
         md,
-        "Candidates (fitted open loop on {} windows before {:.2} s, judged on {} after):\n",
-        o.train_windows, o.heldout_from, o.heldout_windows
+        "Candidates (fitted open loop on {} windows; judged by cross-validation over folds {}):\n",
+        o.windows,
+        if spans.is_empty() {
+            "(none: too few windows)".to_string()
+        } else {
+            spans.join(", ")
+        }
     );
     let _ = writeln!(
         md,
-        "| effect | parameter | value | 95 % interval | fit gain | held-out gain |\n|---|---|---|---|---|---|"
+        "| effect | parameter | value | 95 % interval | fit gain | cross-validated gain |\n|---|---|---|---|---|---|"
     );
     for c in &o.candidates {
         let _ = writeln!(
@@ -380,7 +392,10 @@ fn candidates_section(md: &mut String, o: &ObjectReport) {
 
 /// The held-out part before and after, and the plots.
 fn show_section(md: &mut String, o: &ObjectReport) {
-    let _ = writeln!(md, "**Show.** Held-out part, before -> after:\n");
+    let _ = writeln!(
+        md,
+        "**Show.** Every judged window, before -> after (the effect's parameter fitted on them):\n"
+    );
     let _ = writeln!(md, "| metric | before | after |\n|---|---|---|");
     let _ = writeln!(
         md,
@@ -406,14 +421,13 @@ fn show_section(md: &mut String, o: &ObjectReport) {
 mod tests {
     use super::*;
 
-    /// "No missing physics" is a finding that needs windows to fit and to judge on; without them
-    /// the verdict says there is not enough evidence, whatever was (not) named.
+    /// "No missing physics" is a finding that needs folds to judge on; without them the verdict
+    /// says there is not enough evidence, whatever was (not) named.
     #[test]
     fn no_missing_physics_needs_evidence() {
-        assert_eq!(Verdict::of(false, false, 12, 5), Verdict::NoMissingPhysics);
-        assert_eq!(Verdict::of(false, false, 12, 0), Verdict::NotEnoughEvidence);
-        assert_eq!(Verdict::of(false, false, 2, 9), Verdict::NotEnoughEvidence);
-        assert_eq!(Verdict::of(true, false, 12, 5), Verdict::Named);
-        assert_eq!(Verdict::of(false, true, 0, 0), Verdict::ExplainedByAnother);
+        assert_eq!(Verdict::of(false, false, 3), Verdict::NoMissingPhysics);
+        assert_eq!(Verdict::of(false, false, 0), Verdict::NotEnoughEvidence);
+        assert_eq!(Verdict::of(true, false, 3), Verdict::Named);
+        assert_eq!(Verdict::of(false, true, 0), Verdict::ExplainedByAnother);
     }
 }

@@ -1,7 +1,7 @@
 //! `pegs diagnose`: locate, name, model, show (see the module docs). One pass per file:
 //!
 //! - `study`: per object, the windows its open-loop predictions are judged on, every family
-//!   fitted on them, and the one named;
+//!   fitted on them and cross-validated over folds of them, and the one named;
 //! - `refine`: the named effects fitted again on a replay tracked with them, and objects whose
 //!   mismatches another object's effect explains;
 //! - `show`: the replay with the augmented model, before / after outcomes, plots and the report.
@@ -21,10 +21,11 @@ use std::path::Path;
 pub struct DiagnoseOptions {
     /// Open-loop prediction horizon, s.
     pub horizon: f64,
-    /// Fraction of the recording (in time) used for fitting; the rest is held out.
+    /// The residual regression (`select`) fits on this fraction of the recording (in time) and is
+    /// judged on the rest. The families are judged by cross-validation (`study`).
     pub train_fraction: f64,
     /// A family is named only if it removes at least this fraction of the squared open-loop
-    /// error on both the fitting and the held-out windows.
+    /// error on the windows it was fitted on and, cross-validated, on windows it was not.
     pub min_gain: f64,
     /// Seconds at the start while tracking converges onto the start pose; not used.
     pub settle: f64,
@@ -43,23 +44,19 @@ impl Default for DiagnoseOptions {
     }
 }
 
-/// What every object's study shares: the horizon of the open-loop predictions (ticks), where
-/// fitting ends and the held-out part begins, and the options.
+/// What every object's study shares: the horizon of the open-loop predictions (ticks), the
+/// recording's first time and the options.
 struct Plan {
     horizon: usize,
     t_first: f64,
-    cut: f64,
     opts: DiagnoseOptions,
 }
 
 impl Plan {
     fn new(trace: &Trace, opts: DiagnoseOptions) -> Self {
-        let t_first = trace.states.first().map_or(0.0, |s| s.time);
-        let t_last = trace.states.last().map_or(0.0, |s| s.time);
         Self {
             horizon: (opts.horizon / trace.dt()).round().max(1.0) as usize,
-            t_first,
-            cut: t_first + opts.train_fraction * (t_last - t_first),
+            t_first: trace.states.first().map_or(0.0, |s| s.time),
             opts,
         }
     }
@@ -97,7 +94,6 @@ pub fn diagnose(
     let quiet = Plan {
         horizon: 1,
         t_first: 0.0,
-        cut: 0.0,
         opts,
     };
     let before = traced_replay(recording, config, &out.join("before"), &quiet)?;

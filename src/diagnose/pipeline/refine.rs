@@ -61,25 +61,25 @@ fn refine(retraced: &Trace, plan: &Plan, study: &mut Study) -> Result<()> {
     };
     plan.say(format!("{}: refining {}", study.name, family.name()));
     let (shape, horizon, base) = (study.shape, plan.horizon, &study.setting.base);
-    let base_train = retraced.predict(base, shape, &study.train, horizon)?;
-    let base_heldout = retraced.predict(base, shape, &study.heldout, horizon)?;
-    let (direction, anchor) = refit::directions(retraced, shape, &base_train);
+    let windows = &study.windows;
+    let base_windows = retraced.predict(base, shape, windows, horizon)?;
+    let (direction, anchor) = refit::directions(retraced, shape, &base_windows);
     let setting = FitSetting {
         force_direction: direction.or(study.setting.force_direction),
         anchor: anchor.or(study.setting.anchor),
-        region: refit::footprint(retraced, shape, &study.train, horizon).or(study.setting.region),
+        region: refit::footprint(retraced, shape, windows, horizon).or(study.setting.region),
         ..study.setting.clone()
     };
-    let (train, heldout) = (&study.train, &study.heldout);
+    // Fitted on every window: the judging was done where the family was named.
     let refined = refit::fit(
         retraced,
         &setting,
         family,
-        train,
-        heldout,
+        windows,
+        windows,
         horizon,
-        &base_train,
-        &base_heldout,
+        &base_windows,
+        &base_windows,
     )?;
     if let Some(f) = refined.filter(|f| f.effect_term.is_some()) {
         study.refined_from = Some(named);

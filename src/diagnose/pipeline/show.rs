@@ -1,4 +1,5 @@
-//! Show: replay with the augmented model (`out/after`), the held-out outcomes before and after,
+//! Show: replay with the augmented model (`out/after`), the outcomes over every judged window
+//! before and after,
 //! each object's short-horizon errors (CSV) and plots, and the report (`report.json`,
 //! `report.md`).
 
@@ -44,31 +45,25 @@ pub fn report(
     after: Option<&Metrics>,
     studies: Vec<Study>,
 ) -> Result<Report> {
-    let cut = plan.cut;
     let mut objects = Vec::new();
     for study in studies {
-        let outcome_before = outcome(
-            &study.base_heldout,
-            &study.samples,
-            before,
-            &study.name,
-            cut,
-        );
-        let (outcome_after, after_heldout) = match after {
+        let outcome_before = outcome(&study.base, &study.samples, before, &study.name);
+        let (outcome_after, after_windows) = match after {
             Some(run) => {
                 let t = run.trace.as_ref().context("replay kept no trace")?;
-                let p = t.predict(&t.physics, study.shape, &study.heldout, plan.horizon)?;
+                let p = t.predict(&t.physics, study.shape, &study.windows, plan.horizon)?;
                 let mine: Vec<Sample> = t
                     .samples
                     .iter()
                     .filter(|s| s.object == study.name)
                     .cloned()
                     .collect();
-                (outcome(&p, &mine, run, &study.name, cut), p)
+                (outcome(&p, &mine, run, &study.name), p)
             }
-            None => (outcome_before.clone(), study.base_heldout.clone()),
+            None => (outcome_before.clone(), study.base.clone()),
         };
-        write_object(out, trace, &study, cut, &after_heldout)?;
+        let folds = fold_spans(trace, &study, plan.horizon);
+        write_object(out, trace, &study, &folds, &after_windows)?;
         let relocated = trace
             .jumps
             .iter()
@@ -80,7 +75,7 @@ pub fn report(
             relocated,
             outcome_before,
             outcome_after,
-            cut,
+            folds,
             plan.opts.train_fraction,
         ));
     }
@@ -95,14 +90,28 @@ pub fn report(
     Ok(report)
 }
 
+/// The time span (s) of each fold's windows, from the first window's start to the last one's end.
+fn fold_spans(trace: &Trace, study: &Study, horizon: usize) -> Vec<[f64; 2]> {
+    let time = |k: usize| trace.states[k.min(trace.states.len() - 1)].time;
+    study
+        .folds
+        .iter()
+        .filter(|f| !f.is_empty())
+        .map(|f| {
+            let (first, last) = (study.windows[f.start], study.windows[f.end - 1]);
+            [time(first), time(last + horizon)]
+        })
+        .collect()
+}
+
 /// The object's short-horizon errors (`<object>_short_horizon_errors.csv`) and its plots of the
 /// residual over time, the residual against the named effect's feature, and the open-loop paths.
 fn write_object(
     out: &Path,
     trace: &Trace,
     study: &Study,
-    cut: f64,
-    after_heldout: &[Prediction],
+    folds: &[[f64; 2]],
+    after_windows: &[Prediction],
 ) -> Result<()> {
     let mut csv = String::from("t,error_mm\n");
     for (t, e) in &study.located.errors {
@@ -113,43 +122,39 @@ fn write_object(
         csv,
     )?;
     let plot = |kind: &str| out.join(format!("{}_{kind}.png", study.name));
-    plots::residual_over_time(&plot("residual"), &study.samples, &study.located, cut)?;
+    let fold_starts: Vec<f64> = folds.iter().map(|f| f[0]).collect();
+    plots::residual_over_time(
+        &plot("residual"),
+        &study.samples,
+        &study.located,
+        &fold_starts,
+    )?;
     let family = study.chosen.as_ref().and_then(|f| f.family);
     plots::residual_vs_feature(&plot("feature"), &study.samples, family, &study.setting)?;
     plots::paths(
         &plot("paths"),
         trace,
         study.shape,
-        cut,
-        &study.base_heldout,
-        after_heldout,
+        folds.first().map_or(0.0, |f| f[0]),
+        &study.base,
+        after_windows,
     )
 }
 
-/// Held-out metrics of one replay: open-loop error of `predictions`, mean corrective force of the
-/// object's samples after `cut`, tracking error after `cut` if there is ground truth.
-fn outcome(
-    predictions: &[Prediction],
-    samples: &[Sample],
-    run: &Metrics,
-    object: &str,
-    cut: f64,
-) -> Outcome {
-    let held: Vec<&Sample> = samples.iter().filter(|s| s.t >= cut).collect();
-    let tracking: Option<Vec<f32>> = run
-        .error_series
-        .get(object)
-        .map(|s| s.iter().filter(|e| e.0 >= cut).map(|e| e.1).collect());
+/// Metrics of one replay: open-loop error of `predictions`, mean corrective force of the
+/// object's samples, tracking error if there is ground truth.
+fn outcome(predictions: &[Prediction], samples: &[Sample], run: &Metrics, object: &str) -> Outcome {
+    let tracking: Option<&Vec<(f64, f32)>> = run.error_series.get(object);
     Outcome {
         open_loop_error_mm: predictions.iter().map(|p| p.error).sum::<f32>()
             / predictions.len().max(1) as f32
             * 1e3,
         open_loop_windows: predictions.len(),
-        corrective_effort_n: held.iter().map(|s| s.force.length()).sum::<f32>()
-            / held.len().max(1) as f32,
+        corrective_effort_n: samples.iter().map(|s| s.force.length()).sum::<f32>()
+            / samples.len().max(1) as f32,
         tracking_error_mm: tracking
             .filter(|e| !e.is_empty())
-            .map(|e| e.iter().sum::<f32>() / e.len() as f32 * 1e3),
+            .map(|e| e.iter().map(|x| x.1).sum::<f32>() / e.len() as f32 * 1e3),
     }
 }
 
@@ -158,7 +163,7 @@ fn object_report(
     relocated: Vec<crate::trace::Jump>,
     before: Outcome,
     after: Outcome,
-    cut: f64,
+    folds: Vec<[f64; 2]>,
     train_fraction: f64,
 ) -> ObjectReport {
     let mut parameters = Vec::new();
@@ -201,8 +206,7 @@ fn object_report(
     let verdict = Verdict::of(
         study.chosen.is_some(),
         study.explained_by.is_some(),
-        study.train.len(),
-        study.heldout.len(),
+        folds.len(),
     );
     ObjectReport {
         object: study.name,
@@ -229,7 +233,7 @@ fn object_report(
             .as_ref()
             .map_or("none".into(), |f| f.effect.clone()),
         parameters,
-        // How much the effect explains is judged where it was named.
+        // How much the effect explains is judged where it was named, cross-validated.
         explained_fraction: study
             .refined_from
             .as_ref()
@@ -237,9 +241,8 @@ fn object_report(
             .map_or(0.0, |f| f.heldout_gain()),
         named_fit: study.refined_from,
         residual_explained_fraction,
-        heldout_from: cut,
-        train_windows: study.train.len(),
-        heldout_windows: study.heldout.len(),
+        windows: study.windows.len(),
+        folds,
         candidates: study.fits,
         regression: study.regression,
         before,

@@ -1,23 +1,30 @@
 //! Per object: where its open-loop predictions fail (`locate`), the windows they are judged on
-//! (fitting before the cut, held out after it, only where the object moves and the robot does
-//! not touch it), every family fitted on them, and the one named: of the families that pass on
-//! both parts, the simplest that the windows cannot tell from the best, provided it explains
-//! located mismatches (the object's own or another's).
+//! (wherever the object moves, pushed by the robot or not), every family fitted on them and
+//! judged by cross-validation (the windows cut into folds of consecutive time; each fold
+//! predicted with the parameter fitted on the others), and the one named: of the families that
+//! pass on both, the simplest that the windows cannot tell from the best, provided it explains
+//! located mismatches (the object's own or another's). No recording shape is assumed: a push
+//! then rest, a push that lasts the whole recording and several pushes are judged alike, and a
+//! recording with too few windows of motion gets no folds ("not enough evidence").
 
 use super::Plan;
 use crate::diagnose::candidates;
 use crate::diagnose::locate::{self, Located, Mismatch};
 use crate::diagnose::refit::{self, Fit};
 use crate::diagnose::select::{self, SelectOptions};
-use crate::physics::effects::{FAMILIES, FitSetting};
+use crate::physics::effects::{FAMILIES, Family, FitSetting};
 use crate::trace::{Prediction, Sample, Trace};
 use crate::world::ShapeId;
 use anyhow::Result;
+use std::ops::Range;
 
 /// Windows start every this many ticks.
 const WINDOW_STRIDE: usize = 4;
 /// A window counts only if the object moves (tracked or predicted) at least this far in it, m.
 const ACTIVE_MOTION: f32 = 0.005;
+/// Folds of the cross-validation, and the fewest windows a fold may hold.
+const FOLDS: usize = 3;
+const MIN_PER_FOLD: usize = 2;
 
 /// An object of the trace with its residuals and located mismatches.
 #[derive(Clone)]
@@ -39,8 +46,10 @@ pub struct Study {
     /// For an object with no effect of its own: the other objects' effects that explain its
     /// mismatches.
     pub explained_by: Option<String>,
-    pub train: Vec<usize>,
-    pub heldout: Vec<usize>,
+    /// The windows' start ticks, in time order, and the folds of the cross-validation (index
+    /// ranges into them; none when there were too few windows).
+    pub windows: Vec<usize>,
+    pub folds: Vec<Range<usize>>,
     pub setting: FitSetting,
     pub fits: Vec<Fit>,
     /// The named family's fit: refined on the replay with the named effects when that worked.
@@ -48,7 +57,8 @@ pub struct Study {
     /// The fit that named it, on the first replay (when `chosen` was refined).
     pub refined_from: Option<Fit>,
     pub regression: select::Selection,
-    pub base_heldout: Vec<Prediction>,
+    /// The base model's predictions from `windows`.
+    pub base: Vec<Prediction>,
 }
 
 /// Every dynamic object of the trace, located.
@@ -74,12 +84,10 @@ pub fn locate_all(trace: &Trace, plan: &Plan) -> Result<Vec<Object>> {
     Ok(objects)
 }
 
-/// The base model's predictions of `object` in the fitting and held-out windows.
-fn windows(
-    trace: &Trace,
-    plan: &Plan,
-    object: &Object,
-) -> Result<(Vec<Prediction>, Vec<Prediction>)> {
+/// The base model's predictions of `object` from every window it is judged on, in time order:
+/// windows where the object moves, the robot's pushes included (the predictions move the robot
+/// as recorded, through contact), none across a relocation.
+fn windows(trace: &Trace, plan: &Plan, object: &Object) -> Result<Vec<Prediction>> {
     let (shape, horizon) = (object.shape, plan.horizon);
     let last = trace.states.len().saturating_sub(horizon + 1);
     let all: Vec<usize> = (0..=last)
@@ -89,76 +97,108 @@ fn windows(
         .filter(|&k| !trace.jumps_between(shape, k, k + horizon))
         .collect();
     let base = trace.predict(&trace.physics, shape, &all, horizon)?;
-    let time = |k: usize| trace.states[k].time;
-    // Windows where the robot touches the object are left out: how a push plays out open loop
-    // hangs on the recorded robot motion's timing to a few milliseconds, a mismatch of its own
-    // that no effect of the object explains (the control scenario's pushes miss by tens of mm
-    // with the true physics).
-    let pushed: Vec<f64> = object
-        .samples
-        .iter()
-        .filter(|s| s.touching_robot)
-        .map(|s| s.t)
-        .collect();
     let active = |p: &Prediction| {
         let c0 = trace.centroid(shape, p.start);
         let tracked = (p.start..=p.start + horizon)
             .map(|k| trace.centroid(shape, k).distance(c0))
             .fold(0.0, f32::max);
         let predicted = p.path.iter().map(|q| q.distance(c0)).fold(0.0, f32::max);
-        let (t0, t1) = (time(p.start), time(p.start + horizon));
         tracked.max(predicted) > ACTIVE_MOTION
-            && !pushed.iter().any(|t| *t >= t0 - 1e-9 && *t <= t1 + 1e-9)
     };
-    let cut = plan.cut;
-    let (train, heldout) = base.iter().filter(|p| active(p)).fold(
-        (Vec::new(), Vec::new()),
-        |(mut train, mut heldout), p| {
-            if time(p.start + horizon) <= cut + 1e-9 {
-                train.push(p.clone());
-            }
-            if time(p.start) >= cut - 1e-9 {
-                heldout.push(p.clone());
-            }
-            (train, heldout)
-        },
-    );
-    Ok((train, heldout))
+    Ok(base.into_iter().filter(|p| active(p)).collect())
 }
 
-/// Fit every family to `object` and name one.
-pub fn study(trace: &Trace, plan: &Plan, object: &Object, objects: &[Object]) -> Result<Study> {
-    let (shape, name) = (object.shape, &object.name);
-    let (base_train, base_heldout) = windows(trace, plan, object)?;
-    let train: Vec<usize> = base_train.iter().map(|p| p.start).collect();
-    let heldout: Vec<usize> = base_heldout.iter().map(|p| p.start).collect();
-    let (force_direction, anchor) = refit::directions(trace, shape, &base_train);
-    let setting = FitSetting {
-        object: name.clone(),
+/// The folds of the cross-validation: `n` windows in time order cut into `FOLDS` contiguous
+/// blocks of (nearly) equal count; none when a fold would hold fewer than `MIN_PER_FOLD`.
+pub fn folds(n: usize) -> Vec<Range<usize>> {
+    if n < FOLDS * MIN_PER_FOLD {
+        return Vec::new();
+    }
+    (0..FOLDS)
+        .map(|f| f * n / FOLDS..(f + 1) * n / FOLDS)
+        .collect()
+}
+
+/// What a family is fitted with, estimated from `base` (the windows it is fitted on): a force's
+/// direction and a spring's anchor from the base model's misses, the slid-over area for a patch.
+fn setting_for(trace: &Trace, plan: &Plan, object: &Object, base: &[Prediction]) -> FitSetting {
+    let shape = object.shape;
+    let starts: Vec<usize> = base.iter().map(|p| p.start).collect();
+    let (force_direction, anchor) = refit::directions(trace, shape, base);
+    FitSetting {
+        object: object.name.clone(),
         shape,
         mass: trace.base.shapes.mass[shape as usize],
         base: trace.physics.clone(),
         force_direction,
         anchor,
         // A friction patch can only be found where the object slid in the fitting windows.
-        region: refit::footprint(trace, shape, &train, plan.horizon),
+        region: refit::footprint(trace, shape, &starts, plan.horizon),
         com_limit: refit::com_limits(trace, shape),
+    }
+}
+
+/// `family` fitted on every window (its parameter) and judged by cross-validation: each fold's
+/// windows predicted with the parameter fitted on the other folds (`heldout_errors`, one per
+/// window, in order). Without folds, or where the fit on every window gains too little to be
+/// named, the held-out errors are the base model's (not judged).
+fn cross_fit(
+    trace: &Trace,
+    plan: &Plan,
+    object: &Object,
+    family: &'static dyn Family,
+    base: &[Prediction],
+    folds: &[Range<usize>],
+) -> Result<Option<Fit>> {
+    let starts: Vec<usize> = base.iter().map(|p| p.start).collect();
+    let setting = setting_for(trace, plan, object, base);
+    let fit_on = |setting: &FitSetting, train: &[Prediction], held: &[Prediction]| {
+        let t: Vec<usize> = train.iter().map(|p| p.start).collect();
+        let h: Vec<usize> = held.iter().map(|p| p.start).collect();
+        refit::fit(trace, setting, family, &t, &h, plan.horizon, train, held)
     };
+    let Some(mut whole) = fit_on(&setting, base, base)? else {
+        return Ok(None);
+    };
+    if folds.is_empty() || whole.train_gain() < plan.opts.min_gain {
+        // Too few windows to judge on, or it does not fit even the windows it was fitted on: it
+        // cannot be named, and is not cross-validated (its held-out error is the base model's).
+        whole.heldout_after = whole.heldout_before;
+        whole.heldout_errors = base.iter().map(|p| (p.error as f64).powi(2)).collect();
+        return Ok(Some(whole));
+    }
+    let mut judged = vec![0.0; starts.len()];
+    for fold in folds {
+        let held = &base[fold.clone()];
+        let train: Vec<Prediction> = base[..fold.start]
+            .iter()
+            .chain(&base[fold.end..])
+            .cloned()
+            .collect();
+        let setting = setting_for(trace, plan, object, &train);
+        let Some(f) = fit_on(&setting, &train, held)? else {
+            return Ok(None);
+        };
+        judged[fold.clone()].copy_from_slice(&f.heldout_errors);
+    }
+    whole.heldout_after = judged.iter().sum::<f64>() / judged.len().max(1) as f64;
+    whole.heldout_errors = judged;
+    Ok(Some(whole))
+}
+
+/// Fit every family to `object` and name one.
+pub fn study(trace: &Trace, plan: &Plan, object: &Object, objects: &[Object]) -> Result<Study> {
+    let name = &object.name;
+    let base = windows(trace, plan, object)?;
+    let starts: Vec<usize> = base.iter().map(|p| p.start).collect();
+    let folds = folds(base.len());
+    let setting = setting_for(trace, plan, object, &base);
     let mut fits: Vec<Fit> = Vec::new();
-    if !train.is_empty() && !heldout.is_empty() {
+    // Without folds the families are still fitted (the leading candidate is reported), never named.
+    if !base.is_empty() {
         for &family in &FAMILIES {
             plan.say(format!("{name}: fitting {} open loop", family.name()));
-            let fit = refit::fit(
-                trace,
-                &setting,
-                family,
-                &train,
-                &heldout,
-                plan.horizon,
-                &base_train,
-                &base_heldout,
-            )?;
-            fits.extend(fit);
+            fits.extend(cross_fit(trace, plan, object, family, &base, &folds)?);
         }
     }
     fits.sort_by(|a, b| b.heldout_gain().total_cmp(&a.heldout_gain()));
@@ -169,25 +209,25 @@ pub fn study(trace: &Trace, plan: &Plan, object: &Object, objects: &[Object]) ->
     };
     let regression = select::select(&object.samples, &candidates::ALL, options);
     Ok(Study {
-        shape,
+        shape: object.shape,
         name: name.clone(),
         samples: object.samples.clone(),
         located: object.located.clone(),
         explained,
         explained_by: None,
-        train,
-        heldout,
+        windows: starts,
+        folds,
         setting,
         fits,
         chosen,
         refined_from: None,
         regression,
-        base_heldout,
+        base,
     })
 }
 
-/// The named fit and the mismatches it explains: of the fits that pass on both parts (in
-/// `parsimonious` order), the first whose effect explains located mismatches of this object or
+/// The named fit and the mismatches it explains: of the fits that pass on the windows they were
+/// fitted on and cross-validated (in `parsimonious` order), the first whose effect explains located mismatches of this object or
 /// of another.
 fn choose(
     trace: &Trace,
@@ -265,18 +305,11 @@ fn mass_changes_to_drop(chosen: &[Option<&Fit>]) -> Vec<usize> {
         .collect()
 }
 
-/// `passing` reordered by the one-standard-error rule over all windows (fitting and held-out; a
-/// family that fits the first part far worse is no twin of one that fits both): the best fit
-/// (lowest mean squared error) and the fits within one standard error of it (paired over
-/// windows) come first, simplest first; then the rest, best first.
+/// `passing` reordered by the one-standard-error rule over the cross-validated errors of every
+/// window: the best fit (lowest mean squared error) and the fits within one standard error of it
+/// (paired over windows) come first, simplest first; then the rest, best first.
 fn parsimonious(passing: Vec<&Fit>) -> Vec<&Fit> {
-    let windows = |f: &Fit| {
-        f.train_errors
-            .iter()
-            .chain(&f.heldout_errors)
-            .copied()
-            .collect::<Vec<f64>>()
-    };
+    let windows = |f: &Fit| f.heldout_errors.clone();
     let total = |f: &Fit| windows(f).iter().sum::<f64>();
     let mut passing = passing;
     passing.sort_by(|a, b| total(a).total_cmp(&total(b)));
@@ -338,6 +371,26 @@ mod tests {
             family: Some(family),
             effect_term: None,
         }
+    }
+
+    #[test]
+    fn folds_cover_every_window_once_in_time_order_or_there_are_none() {
+        for n in [6, 7, 8, 19, 40] {
+            let f = folds(n);
+            assert_eq!(f.len(), FOLDS);
+            assert_eq!(f[0].start, 0);
+            assert_eq!(f[FOLDS - 1].end, n);
+            for (a, b) in f.iter().zip(&f[1..]) {
+                assert_eq!(a.end, b.start);
+            }
+            assert!(
+                f.iter()
+                    .all(|r| r.len() >= MIN_PER_FOLD && r.len() <= n / FOLDS + 1)
+            );
+        }
+        // Too few windows to judge a fit on windows it was not fitted on.
+        assert!(folds(FOLDS * MIN_PER_FOLD - 1).is_empty());
+        assert!(folds(0).is_empty());
     }
 
     #[test]
