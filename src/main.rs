@@ -234,6 +234,10 @@ struct DiagnoseArgs {
     /// Start from this model file's effects (e.g. a previous diagnosis).
     #[arg(long)]
     pub model: Option<PathBuf>,
+    /// Fit and judge on windows where the robot pushes the object too (see the README: on
+    /// another engine's recordings this names differences in contact as missing physics).
+    #[arg(long)]
+    pub robot_contact: bool,
 }
 
 #[derive(Args)]
@@ -578,14 +582,14 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
         config,
         out,
         model,
+        robot_contact,
     } = a;
     let config = load_with_model(Some(&config), model.as_deref())?;
-    let report = pegs::diagnose::diagnose(
-        &recording,
-        &config,
-        &out,
-        pegs::diagnose::DiagnoseOptions::default(),
-    )?;
+    let opts = pegs::diagnose::DiagnoseOptions {
+        robot_contact,
+        ..Default::default()
+    };
+    let report = pegs::diagnose::diagnose(&recording, &config, &out, opts)?;
     for o in &report.objects {
         let driven: Vec<String> = o
             .unexplained

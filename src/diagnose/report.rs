@@ -335,7 +335,7 @@ fn not_enough_evidence(md: &mut String, o: &ObjectReport) {
     }
     let _ = writeln!(
         md,
-        "What would settle it: {} moving for longer or more often (pushed, sliding, colliding, coming to rest), so that its motion spans several seconds.\n",
+        "What would settle it: {} moving without the robot touching it (sliding after a strike, colliding, coming to rest) for longer or more often, so that such motion spans several seconds.\n",
         o.object
     );
 }

@@ -29,6 +29,10 @@ pub struct DiagnoseOptions {
     pub min_gain: f64,
     /// Seconds at the start while tracking converges onto the start pose; not used.
     pub settle: f64,
+    /// Windows where the robot touches the object are fitted and judged too (the predictions move
+    /// the robot as recorded). Off by default: on MuJoCo's pushed controls the difference
+    /// between two engines' contacts was named as missing physics (a constant force).
+    pub robot_contact: bool,
     pub progress: bool,
 }
 
@@ -39,6 +43,7 @@ impl Default for DiagnoseOptions {
             train_fraction: 0.7,
             min_gain: 0.3,
             settle: 0.5,
+            robot_contact: false,
             progress: true,
         }
     }

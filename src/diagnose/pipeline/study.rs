@@ -1,5 +1,5 @@
 //! Per object: where its open-loop predictions fail (`locate`), the windows they are judged on
-//! (wherever the object moves, pushed by the robot or not), every family fitted on them and
+//! (wherever the object moves without the robot touching it, or with `robot_contact` pushed too), every family fitted on them and
 //! judged by cross-validation (the windows cut into folds of consecutive time; each fold
 //! predicted with the parameter fitted on the others), and the one named: of the families that
 //! pass on both, the simplest that the windows cannot tell from the best, provided it explains
@@ -85,8 +85,10 @@ pub fn locate_all(trace: &Trace, plan: &Plan) -> Result<Vec<Object>> {
 }
 
 /// The base model's predictions of `object` from every window it is judged on, in time order:
-/// windows where the object moves, the robot's pushes included (the predictions move the robot
-/// as recorded, through contact), none across a relocation.
+/// windows where the object moves, none across a relocation, and none where the robot touches
+/// it unless `robot_contact` is set (the predictions then move the robot as recorded, through
+/// contact; off by default, since how a push plays out differs between one engine's contact and
+/// another's, a mismatch that is no property of the object).
 fn windows(trace: &Trace, plan: &Plan, object: &Object) -> Result<Vec<Prediction>> {
     let (shape, horizon) = (object.shape, plan.horizon);
     let last = trace.states.len().saturating_sub(horizon + 1);
@@ -97,13 +99,22 @@ fn windows(trace: &Trace, plan: &Plan, object: &Object) -> Result<Vec<Prediction
         .filter(|&k| !trace.jumps_between(shape, k, k + horizon))
         .collect();
     let base = trace.predict(&trace.physics, shape, &all, horizon)?;
+    let pushed: Vec<f64> = object
+        .samples
+        .iter()
+        .filter(|s| s.touching_robot)
+        .map(|s| s.t)
+        .collect();
+    let time = |k: usize| trace.states[k].time;
     let active = |p: &Prediction| {
         let c0 = trace.centroid(shape, p.start);
         let tracked = (p.start..=p.start + horizon)
             .map(|k| trace.centroid(shape, k).distance(c0))
             .fold(0.0, f32::max);
         let predicted = p.path.iter().map(|q| q.distance(c0)).fold(0.0, f32::max);
-        tracked.max(predicted) > ACTIVE_MOTION
+        let (t0, t1) = (time(p.start), time(p.start + horizon));
+        let touched = pushed.iter().any(|t| *t >= t0 - 1e-9 && *t <= t1 + 1e-9);
+        tracked.max(predicted) > ACTIVE_MOTION && (plan.opts.robot_contact || !touched)
     };
     Ok(base.into_iter().filter(|p| active(p)).collect())
 }
