@@ -38,18 +38,20 @@ pub enum Verdict {
     ExplainedByAnother,
     /// Enough windows to cross-validate on, and no candidate passed.
     NoMissingPhysics,
-    /// Too few windows of motion to cut into folds: nothing can be said either way.
+    /// Too few windows of motion to cut into folds, or (with the robot's pushes among them) too
+    /// few where the robot does not touch the object: nothing can be said either way.
     NotEnoughEvidence,
 }
 
 impl Verdict {
-    /// `folds`: how many folds the object's windows were cut into (none when too few).
-    pub fn of(named: bool, explained_by_another: bool, folds: usize) -> Self {
+    /// `judgeable`: the windows could judge a family (enough of them to cut into folds and, with
+    /// pushes among them, enough free of the robot).
+    pub fn of(named: bool, explained_by_another: bool, judgeable: bool) -> Self {
         if named {
             Verdict::Named
         } else if explained_by_another {
             Verdict::ExplainedByAnother
-        } else if folds < 2 {
+        } else if !judgeable {
             Verdict::NotEnoughEvidence
         } else {
             Verdict::NoMissingPhysics
@@ -86,6 +88,11 @@ pub struct ObjectReport {
     pub residual_explained_fraction: Option<f64>,
     /// Windows of motion the families were fitted and judged on (1 s open-loop predictions).
     pub windows: usize,
+    /// Of `windows`, those in which the robot touches the object (`--robot-contact` only).
+    pub pushed_windows: usize,
+    /// With pushed windows: the fraction of the cross-validated error the named effect removes
+    /// on the windows free of the robot (it must also hold there to be named).
+    pub free_explained_fraction: Option<f64>,
     /// The folds of the cross-validation: each one's time span (s), from its first window's
     /// start to its last one's end. Empty: too few windows to judge on.
     pub folds: Vec<[f64; 2]>,
@@ -289,6 +296,15 @@ fn name_section(md: &mut String, o: &ObjectReport) {
             o.windows,
             o.folds.len()
         );
+        if let Some(f) = o.free_explained_fraction {
+            let _ = write!(
+                md,
+                "; of those windows the robot pushes it in {}, and on the other {} it removes {:.0} %",
+                o.pushed_windows,
+                o.windows - o.pushed_windows,
+                f * 100.0
+            );
+        }
         if let Some(f) = o.residual_explained_fraction {
             let _ = write!(
                 md,
@@ -309,11 +325,19 @@ fn name_section(md: &mut String, o: &ObjectReport) {
 
 /// Why nothing can be said, the leading candidate, and the motion that would settle it.
 fn not_enough_evidence(md: &mut String, o: &ObjectReport) {
-    let _ = write!(
-        md,
-        "**Name.** Not enough evidence: {} window(s) in which {} moves, too few to cut into folds that judge a fit on windows it was not fitted on. ",
-        o.windows, o.object
-    );
+    if o.folds.is_empty() {
+        let _ = write!(
+            md,
+            "**Name.** Not enough evidence: {} window(s) in which {} moves, too few to cut into folds that judge a fit on windows it was not fitted on. ",
+            o.windows, o.object
+        );
+    } else {
+        let _ = write!(
+            md,
+            "**Name.** Not enough evidence: in {} of the {} windows in which {} moves the robot pushes it, leaving too few free of the robot to tell an effect of the object from a difference in how the push's contact is modelled. ",
+            o.pushed_windows, o.windows, o.object
+        );
+    }
     let leading = o
         .candidates
         .iter()
@@ -425,9 +449,9 @@ mod tests {
     /// says there is not enough evidence, whatever was (not) named.
     #[test]
     fn no_missing_physics_needs_evidence() {
-        assert_eq!(Verdict::of(false, false, 3), Verdict::NoMissingPhysics);
-        assert_eq!(Verdict::of(false, false, 0), Verdict::NotEnoughEvidence);
-        assert_eq!(Verdict::of(true, false, 3), Verdict::Named);
-        assert_eq!(Verdict::of(false, true, 0), Verdict::ExplainedByAnother);
+        assert_eq!(Verdict::of(false, false, true), Verdict::NoMissingPhysics);
+        assert_eq!(Verdict::of(false, false, false), Verdict::NotEnoughEvidence);
+        assert_eq!(Verdict::of(true, false, true), Verdict::Named);
+        assert_eq!(Verdict::of(false, true, false), Verdict::ExplainedByAnother);
     }
 }

@@ -206,8 +206,12 @@ fn object_report(
     let verdict = Verdict::of(
         study.chosen.is_some(),
         study.explained_by.is_some(),
-        folds.len(),
+        super::study::judgeable(&study.folds, &study.pushed),
     );
+    let named_on = study.refined_from.as_ref().or(study.chosen.as_ref());
+    let free_explained_fraction = named_on
+        .filter(|_| study.pushed.contains(&true))
+        .and_then(|f| super::study::free_gain(f, &study.base, &study.pushed));
     ObjectReport {
         object: study.name,
         verdict,
@@ -242,6 +246,8 @@ fn object_report(
         named_fit: study.refined_from,
         residual_explained_fraction,
         windows: study.windows.len(),
+        pushed_windows: study.pushed.iter().filter(|p| **p).count(),
+        free_explained_fraction,
         folds,
         candidates: study.fits,
         regression: study.regression,

@@ -6,6 +6,12 @@
 //! located mismatches (the object's own or another's). No recording shape is assumed: a push
 //! then rest, a push that lasts the whole recording and several pushes are judged alike, and a
 //! recording with too few windows of motion gets no folds ("not enough evidence").
+//!
+//! With the robot's pushes among the windows, a family must also transfer: cut the
+//! cross-validated error on the windows where the robot does not touch the object. An effect of
+//! the object acts whether or not it is pushed, while a difference in how two contact models play
+//! out a push shows only while the robot pushes; without enough such free windows nothing is
+//! named ("not enough evidence").
 
 use super::Plan;
 use crate::diagnose::candidates;
@@ -49,6 +55,8 @@ pub struct Study {
     /// The windows' start ticks, in time order, and the folds of the cross-validation (index
     /// ranges into them; none when there were too few windows).
     pub windows: Vec<usize>,
+    /// Per window: the robot touches the object in it (only with `robot_contact`).
+    pub pushed: Vec<bool>,
     pub folds: Vec<Range<usize>>,
     pub setting: FitSetting,
     pub fits: Vec<Fit>,
@@ -84,12 +92,13 @@ pub fn locate_all(trace: &Trace, plan: &Plan) -> Result<Vec<Object>> {
     Ok(objects)
 }
 
-/// The base model's predictions of `object` from every window it is judged on, in time order:
-/// windows where the object moves, none across a relocation, and none where the robot touches
-/// it unless `robot_contact` is set (the predictions then move the robot as recorded, through
-/// contact; off by default, since how a push plays out differs between one engine's contact and
-/// another's, a mismatch that is no property of the object).
-fn windows(trace: &Trace, plan: &Plan, object: &Object) -> Result<Vec<Prediction>> {
+/// The base model's predictions of `object` from every window it is judged on, in time order,
+/// and whether the robot touches the object in each: windows where the object moves, none
+/// across a relocation, and none where the robot touches it unless `robot_contact` is set (the
+/// predictions then move the robot as recorded, through contact; off by default, since how a
+/// push plays out differs between one engine's contact and another's, a mismatch that is no
+/// property of the object).
+fn windows(trace: &Trace, plan: &Plan, object: &Object) -> Result<(Vec<Prediction>, Vec<bool>)> {
     let (shape, horizon) = (object.shape, plan.horizon);
     let last = trace.states.len().saturating_sub(horizon + 1);
     let all: Vec<usize> = (0..=last)
@@ -106,17 +115,27 @@ fn windows(trace: &Trace, plan: &Plan, object: &Object) -> Result<Vec<Prediction
         .map(|s| s.t)
         .collect();
     let time = |k: usize| trace.states[k].time;
-    let active = |p: &Prediction| {
+    let moves = |p: &Prediction| {
         let c0 = trace.centroid(shape, p.start);
         let tracked = (p.start..=p.start + horizon)
             .map(|k| trace.centroid(shape, k).distance(c0))
             .fold(0.0, f32::max);
         let predicted = p.path.iter().map(|q| q.distance(c0)).fold(0.0, f32::max);
-        let (t0, t1) = (time(p.start), time(p.start + horizon));
-        let touched = pushed.iter().any(|t| *t >= t0 - 1e-9 && *t <= t1 + 1e-9);
-        tracked.max(predicted) > ACTIVE_MOTION && (plan.opts.robot_contact || !touched)
+        tracked.max(predicted) > ACTIVE_MOTION
     };
-    Ok(base.into_iter().filter(|p| active(p)).collect())
+    let touched = |p: &Prediction| {
+        let (t0, t1) = (time(p.start), time(p.start + horizon));
+        pushed.iter().any(|t| *t >= t0 - 1e-9 && *t <= t1 + 1e-9)
+    };
+    Ok(base
+        .into_iter()
+        .filter(|p| moves(p))
+        .map(|p| {
+            let touched = touched(&p);
+            (p, touched)
+        })
+        .filter(|(_, touched)| plan.opts.robot_contact || !touched)
+        .unzip())
 }
 
 /// The folds of the cross-validation: `n` windows in time order cut into `FOLDS` contiguous
@@ -128,6 +147,30 @@ pub fn folds(n: usize) -> Vec<Range<usize>> {
     (0..FOLDS)
         .map(|f| f * n / FOLDS..(f + 1) * n / FOLDS)
         .collect()
+}
+
+/// Whether the windows can judge a family: folds to cross-validate on and, where the robot
+/// pushes in some windows, at least `MIN_PER_FOLD` windows where it does not (an effect seen
+/// only while the robot pushes cannot be told from a difference in contact models).
+pub fn judgeable(folds: &[Range<usize>], pushed: &[bool]) -> bool {
+    let free = pushed.iter().filter(|p| !**p).count();
+    !folds.is_empty() && (free == pushed.len() || free >= MIN_PER_FOLD)
+}
+
+/// The fraction of the base model's squared error that `fit` removes, cross-validated, on the
+/// windows where the robot does not touch the object; `None` without such windows.
+pub fn free_gain(fit: &Fit, base: &[Prediction], pushed: &[bool]) -> Option<f64> {
+    let free = || {
+        fit.heldout_errors
+            .iter()
+            .zip(base)
+            .zip(pushed)
+            .filter(|(_, pushed)| !**pushed)
+            .map(|(pair, _)| pair)
+    };
+    let before: f64 = free().map(|(_, p)| (p.error as f64).powi(2)).sum();
+    let after: f64 = free().map(|(e, _)| *e).sum();
+    (free().count() > 0 && before > 0.0).then(|| 1.0 - after / before)
 }
 
 /// What a family is fitted with, estimated from `base` (the windows it is fitted on): a force's
@@ -200,7 +243,7 @@ fn cross_fit(
 /// Fit every family to `object` and name one.
 pub fn study(trace: &Trace, plan: &Plan, object: &Object, objects: &[Object]) -> Result<Study> {
     let name = &object.name;
-    let base = windows(trace, plan, object)?;
+    let (base, pushed) = windows(trace, plan, object)?;
     let starts: Vec<usize> = base.iter().map(|p| p.start).collect();
     let folds = folds(base.len());
     let setting = setting_for(trace, plan, object, &base);
@@ -213,7 +256,11 @@ pub fn study(trace: &Trace, plan: &Plan, object: &Object, objects: &[Object]) ->
         }
     }
     fits.sort_by(|a, b| b.heldout_gain().total_cmp(&a.heldout_gain()));
-    let (chosen, explained) = choose(trace, plan, object, objects, &fits)?;
+    let (chosen, explained) = if judgeable(&folds, &pushed) {
+        choose(trace, plan, object, objects, &fits, &base, &pushed)?
+    } else {
+        (None, Vec::new())
+    };
     let options = SelectOptions {
         train_fraction: plan.opts.train_fraction,
         ..Default::default()
@@ -227,6 +274,7 @@ pub fn study(trace: &Trace, plan: &Plan, object: &Object, objects: &[Object]) ->
         explained,
         explained_by: None,
         windows: starts,
+        pushed,
         folds,
         setting,
         fits,
@@ -238,19 +286,25 @@ pub fn study(trace: &Trace, plan: &Plan, object: &Object, objects: &[Object]) ->
 }
 
 /// The named fit and the mismatches it explains: of the fits that pass on the windows they were
-/// fitted on and cross-validated (in `parsimonious` order), the first whose effect explains located mismatches of this object or
-/// of another.
+/// fitted on, cross-validated and, where the robot pushes in some windows, cross-validated on
+/// those where it does not (in `parsimonious` order), the first whose effect explains located
+/// mismatches of this object or of another.
 fn choose(
     trace: &Trace,
     plan: &Plan,
     object: &Object,
     objects: &[Object],
     fits: &[Fit],
+    base: &[Prediction],
+    pushed: &[bool],
 ) -> Result<(Option<Fit>, Vec<Mismatch>)> {
     let min_gain = plan.opts.min_gain;
+    let transfers = |f: &Fit| {
+        !pushed.contains(&true) || free_gain(f, base, pushed).is_some_and(|g| g >= min_gain)
+    };
     let passing = fits
         .iter()
-        .filter(|f| f.train_gain() >= min_gain && f.heldout_gain() >= min_gain)
+        .filter(|f| f.train_gain() >= min_gain && f.heldout_gain() >= min_gain && transfers(f))
         .collect();
     let mut explained = Vec::new();
     for f in parsimonious(passing) {
@@ -402,6 +456,48 @@ mod tests {
         // Too few windows to judge a fit on windows it was not fitted on.
         assert!(folds(FOLDS * MIN_PER_FOLD - 1).is_empty());
         assert!(folds(0).is_empty());
+    }
+
+    #[test]
+    fn an_effect_seen_only_while_the_robot_pushes_cannot_be_judged() {
+        let nine = folds(9);
+        assert!(judgeable(&nine, &[false; 9]));
+        assert!(!judgeable(&nine, &[true; 9]));
+        let mut two_free = [true; 9];
+        two_free[7] = false;
+        assert!(!judgeable(&nine, &two_free));
+        two_free[8] = false;
+        assert!(judgeable(&nine, &two_free));
+        // Too few windows to cut into folds, pushed or not.
+        assert!(!judgeable(&folds(4), &[false; 4]));
+    }
+
+    #[test]
+    fn the_gain_free_of_the_robot_counts_only_windows_the_robot_does_not_touch() {
+        let base: Vec<Prediction> = [0.02f32, 0.01, 0.03, 0.01]
+            .iter()
+            .enumerate()
+            .map(|(start, &error)| Prediction {
+                start,
+                error,
+                path: Vec::new(),
+            })
+            .collect();
+        // The effect halves the error while pushed and does nothing otherwise.
+        let after = [
+            0.01f64.powi(2),
+            0.01f64.powi(2),
+            0.015f64.powi(2),
+            0.01f64.powi(2),
+        ];
+        let f = fit("constant_force", &after);
+        let pushed = [true, false, true, false];
+        assert!(free_gain(&f, &base, &pushed).is_some_and(|g| g.abs() < 1e-6));
+        // Where it halves the error free of the robot, three quarters of the square goes.
+        let pushed = [false, true, false, true];
+        let g = free_gain(&f, &base, &pushed).unwrap_or(f64::NAN);
+        assert!((g - 0.75).abs() < 1e-6, "{g}");
+        assert!(free_gain(&f, &base, &[true; 4]).is_none());
     }
 
     #[test]
