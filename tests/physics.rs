@@ -909,3 +909,95 @@ fn stepping_is_deterministic() {
         "two runs differ"
     );
 }
+
+/// The angle (rad) a shape resting on the ground turns before friction stops it, spun about the
+/// vertical through its centroid at `omega0` rad/s; with the mean horizontal distance of its
+/// bottom-layer particles from the centroid and its mean squared horizontal radius.
+fn spin_angle(half: Vec3, omega0: f32, config: PhysicsConfig) -> (f32, f32, f32) {
+    let (mut w, s) = box_on_ground(half, Vec3::ZERO);
+    let mut solver = Solver::new(config, &w).unwrap();
+    run(&mut w, &mut solver, 15, |_| {}); // settle onto the ground
+    let c = w.shape_centroid(s);
+    let range: Vec<usize> = w.shapes.range(s).collect();
+    let radial = |p: Vec3| Vec3::new(p.x - c.x, p.y - c.y, 0.0);
+    let lowest = range
+        .iter()
+        .map(|&i| w.particles.position[i].z)
+        .fold(f32::INFINITY, f32::min);
+    let bottom: Vec<usize> = range
+        .iter()
+        .copied()
+        .filter(|&i| w.particles.position[i].z < lowest + 0.5 * R)
+        .collect();
+    let mean_radius = bottom
+        .iter()
+        .map(|&i| radial(w.particles.position[i]).length())
+        .sum::<f32>()
+        / bottom.len() as f32;
+    let mean_square = range
+        .iter()
+        .map(|&i| radial(w.particles.position[i]).length_squared())
+        .sum::<f32>()
+        / range.len() as f32;
+    for &i in &range {
+        let r = radial(w.particles.position[i]);
+        w.particles.velocity[i] = Vec3::new(-omega0 * r.y, omega0 * r.x, 0.0);
+    }
+    // The turn of the long axis, unwrapped tick by tick.
+    let (a, b) = (range[0], range[range.len() - 1]);
+    let heading = |w: &World| {
+        let d = w.particles.position[b] - w.particles.position[a];
+        d.y.atan2(d.x)
+    };
+    let (mut last, mut turned) = (heading(&w), 0.0f32);
+    for _ in 0..400 {
+        solver.step(&mut w).unwrap();
+        let h = heading(&w);
+        let mut dh = h - last;
+        if dh > std::f32::consts::PI {
+            dh -= 2.0 * std::f32::consts::PI;
+        } else if dh < -std::f32::consts::PI {
+            dh += 2.0 * std::f32::consts::PI;
+        }
+        turned += dh;
+        last = h;
+        let spin = range
+            .iter()
+            .map(|&i| w.particles.velocity[i].length())
+            .fold(0.0f32, f32::max);
+        if spin < 1e-4 {
+            break;
+        }
+    }
+    (turned, mean_radius, mean_square)
+}
+
+/// A shape spun on the table bears on it evenly: kinetic friction mu m g acting at each bottom
+/// particle's distance r gives the torque mu m g mean(r), so a spin at omega0 stops after
+/// omega0^2 mean(r^2) / (2 mu g mean(r)). A support at the corners (as MuJoCo's box-plane
+/// contact has) would stop a long bar in about half that angle.
+#[test]
+fn spinning_bar_stops_after_the_turn_its_even_support_predicts() {
+    let config = undamped();
+    let mu = config.ground.kinetic_friction;
+    for (half, omega0) in [
+        (Vec3::new(0.095, 0.0175, 0.025), 6.0f32),
+        (Vec3::new(0.06, 0.03, 0.025), 6.0),
+        (Vec3::new(0.095, 0.0175, 0.025), 3.0),
+    ] {
+        let (turned, mean_radius, mean_square) = spin_angle(half, omega0, config.clone());
+        let even = omega0 * omega0 * mean_square / (2.0 * mu * G * mean_radius);
+        let corners = omega0 * omega0 * mean_square / (2.0 * mu * G * half.truncate().length());
+        eprintln!(
+            "{half} at {omega0} rad/s: turned {:.3} rad; even support {:.3} rad ({:+.1} %), corners {:.3} rad",
+            turned,
+            even,
+            100.0 * (turned - even) / even,
+            corners
+        );
+        assert!(
+            (turned - even).abs() < 0.1 * even,
+            "{half}: turned {turned} rad, even support predicts {even} rad"
+        );
+    }
+}

@@ -25,9 +25,20 @@ pub fn friction(tangential: Vec3, depth: f32, mu_static: f32, mu_kinetic: f32) -
     }
 }
 
+/// How a particle touches the ground in a sweep.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Grip {
+    #[default]
+    Free,
+    /// Held by static friction.
+    Sticks,
+    /// Sliding under kinetic friction.
+    Slips,
+}
+
 /// Push dynamic particles out of the plane and apply friction against their substep-start
 /// positions `prev`. `coefficients(p)` gives (static, kinetic) friction at a contact point.
-/// Particles held by static friction are marked in `pinned`.
+/// Each touching particle's `grip` says whether static friction holds it or it slides.
 pub fn project_ground(
     pos: &mut [Vec3],
     prev: &[Vec3],
@@ -35,13 +46,13 @@ pub fn project_ground(
     inv_mass: &[f32],
     plane: Plane,
     coefficients: &(dyn Fn(Vec3) -> (f32, f32) + Sync),
-    pinned: &mut [bool],
+    grip: &mut [Grip],
 ) {
     pos.par_iter_mut()
-        .zip(pinned.par_iter_mut())
+        .zip(grip.par_iter_mut())
         .with_min_len(8192)
         .enumerate()
-        .for_each(|(i, (x, pinned))| {
+        .for_each(|(i, (x, grip))| {
             if inv_mass[i] <= 0.0 {
                 return;
             }
@@ -55,7 +66,7 @@ pub fn project_ground(
             let (mu_s, mu_k) = coefficients(*x);
             let (correction, sticks) = friction(tangential, depth, mu_s, mu_k);
             *x += correction;
-            *pinned |= sticks;
+            *grip = if sticks { Grip::Sticks } else { Grip::Slips };
         });
 }
 
@@ -103,7 +114,7 @@ mod tests {
             &[1.0],
             plane,
             &|_| (0.0, 0.0),
-            &mut [false],
+            &mut [Grip::Free],
         );
         assert!((n.dot(pos[0]) - plane.height - 0.01).abs() < 1e-6);
         // Frictionless: the correction is purely along the normal.
@@ -118,7 +129,7 @@ mod tests {
             &[0.0],
             plane,
             &|_| (0.0, 0.0),
-            &mut [false],
+            &mut [Grip::Free],
         );
         assert_eq!(pinned[0], start);
     }

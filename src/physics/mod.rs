@@ -69,8 +69,11 @@ pub struct Solver {
     accel: Vec<Vec3>,
     delta: Vec<Vec3>,
     count: Vec<u32>,
-    /// Particles held by static friction against something immovable in the current sweep.
+    /// Particles held by something immovable in the current sweep: a kinematic or static body
+    /// they touch, or the ground where static friction holds every contact of their shape.
     pinned: Vec<bool>,
+    /// How each particle touches the ground in the current sweep.
+    grip: Vec<ground::Grip>,
     hash: SpatialHash,
     neighbours: NeighbourLists,
     tick_start: Vec<Pose>,
@@ -89,6 +92,7 @@ impl Solver {
             inv_mass: Vec::new(),
             shape_mass: Vec::new(),
             pinned: Vec::new(),
+            grip: Vec::new(),
             shape_velocity: Vec::new(),
             restitution: Vec::new(),
             normal_speed: Vec::new(),
@@ -149,6 +153,7 @@ impl Solver {
         self.delta = vec![Vec3::ZERO; n];
         self.count = vec![0; n];
         self.pinned = vec![false; n];
+        self.grip = vec![ground::Grip::Free; n];
         self.attachments = distance::LongRangeAttachments::build(world, &self.inv_mass);
         self.stats.ground_contacts = vec![0; ns];
         self.bound_to = (n, ns);
@@ -338,6 +343,7 @@ impl Solver {
         let cfg = &self.config;
         let p = &mut world.particles;
         self.pinned.fill(false);
+        self.grip.fill(ground::Grip::Free);
         if cfg.ground.enabled {
             let plane = Plane {
                 normal: cfg.ground.normal,
@@ -353,7 +359,7 @@ impl Solver {
                     &self.inv_mass,
                     plane,
                     &|x| effects.ground_friction(x, base),
-                    &mut self.pinned,
+                    &mut self.grip,
                 );
             } else {
                 ground::project_ground(
@@ -363,7 +369,7 @@ impl Solver {
                     &self.inv_mass,
                     plane,
                     &|_| base,
-                    &mut self.pinned,
+                    &mut self.grip,
                 );
             }
         }
@@ -395,7 +401,26 @@ impl Solver {
                 self.attachments.project(&mut p.position);
             }
         }
+        self.pin_shapes_held_by_the_ground(world);
         self.match_rigid_shapes(world);
+    }
+
+    /// A rigid shape whose every ground contact sticks is held as a whole: its contacts are pinned
+    /// in shape matching, so forces below static friction (a tilt, a corrective force) do not
+    /// creep it. Where some contacts slide (a spin, a push that turns it), none is: a pinned
+    /// contact would outweigh the sliding ones' friction in the fit and halve the friction torque.
+    fn pin_shapes_held_by_the_ground(&mut self, world: &World) {
+        let shapes = &world.shapes;
+        for s in 0..shapes.len() {
+            let range = shapes.range(s as ShapeId);
+            let grip = &self.grip[range.clone()];
+            if grip.contains(&ground::Grip::Slips) {
+                continue;
+            }
+            for (pinned, grip) in self.pinned[range].iter_mut().zip(grip) {
+                *pinned |= *grip == ground::Grip::Sticks;
+            }
+        }
     }
 
     fn match_rigid_shapes(&mut self, world: &mut World) {

@@ -36,8 +36,9 @@ def seeds(text: str) -> list[int]:
 
 
 def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str | None, stamp0: float,
-           depth: str = "32FC1", layout: str = "pegs", storage: str = "mcap") -> Path:
+           depth: str = "32FC1", layout: str = "pegs", storage: str = "mcap", support: str = "corners") -> Path:
     scene = scenes.draw(kind, seed, shape)
+    scene.support = support
     folder = out / f"{kind}_{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     clock = time.time()
@@ -72,12 +73,14 @@ def main() -> None:
     ap.add_argument("--layout", choices=["pegs", "realsense"], default="pegs",
                     help="realsense: JPEG colour, 16UC1 depth, no masks, the drivers' tf chain (see write.py)")
     ap.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    ap.add_argument("--support", choices=["corners", "spread"], default="corners",
+                    help="where objects bear on the table: MuJoCo's box corners, or spread under the bottom face")
     a = ap.parse_args()
     kinds = {"all": scenes.KINDS, "model_errors": scenes.MODEL_ERRORS}.get(a.kind, [a.kind])
     chosen = seeds(a.seeds) if a.seeds else [a.seed if a.seed is not None else 0]
     for kind in kinds:
         for seed in chosen:
-            record(kind, seed, a.out, a.width, a.height, a.shape, a.stamp0, a.depth, a.layout, a.storage)
+            record(kind, seed, a.out, a.width, a.height, a.shape, a.stamp0, a.depth, a.layout, a.storage, a.support)
 
 
 if __name__ == "__main__":

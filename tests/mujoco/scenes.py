@@ -129,6 +129,10 @@ class Scene:
     restitution: float | None = None  # MuJoCo contact damping ratio of the dropped object
     engine_friction: float | None = None  # the engine's friction where it differs from `friction`
     hand: list[Push] = field(default_factory=list)  # an unmodelled kinematic body's pushes
+    # Where the objects bear on the table: MuJoCo's own box-plane contact at the four bottom
+    # corners ("corners"), or spread over a grid of points under the bottom face ("spread", as
+    # pegs's particles bear). It decides how far a push turns an object (tests/mujoco/support.py).
+    support: str = "corners"
 
 
 def make_object(rng: random.Random, shape: str, name: str, label: int, x: float, y: float) -> Obj:

@@ -134,6 +134,11 @@ def build(scene: Scene, urdf: str, width: int, height: int, rng: np.random.Gener
         geom = dict(rgba=[*o.colour, 1.0], friction=[mu, 0.005, 0.0001], density=0.0)
         if scene.restitution is not None:
             geom["solref"] = [0.005, scene.restitution]
+        if scene.support == "spread":
+            # The visible shape touches the robot and other objects but not the table; hidden
+            # spheres under its bottom face carry it (collision bits: table 1, shapes 2, robot 3).
+            add_support(body, o, geom)
+            geom.update(contype=2, conaffinity=2)
         if o.shape == "cylinder":
             body.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[o.radius, o.half_height, 0], **geom)
         for p in o.parts:
@@ -143,6 +148,10 @@ def build(scene: Scene, urdf: str, width: int, height: int, rng: np.random.Gener
         hand = world.add_body(name="hand", mocap=True, pos=list(hand_pose(scene, 0.0)))
         hand.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[HAND_RADIUS, HAND_HALF_LENGTH, 0],
                       rgba=[0.85, 0.62, 0.5, 1.0], friction=[mu, 0.005, 0.0001])
+    if scene.support == "spread":
+        for g in spec.geoms:
+            if g.parent.name.startswith("panda") or g.parent.name == "hand":
+                g.contype, g.conaffinity = 3, 3
     fovy = 42.0
     target = np.array([0.5, 0.0, 0.02])
     eyes = [np.array([1.05, -0.45, 0.55]), np.array([1.0, 0.5, 0.6]), np.array([0.3, -0.6, 0.65])]
@@ -156,6 +165,34 @@ def build(scene: Scene, urdf: str, width: int, height: int, rng: np.random.Gener
     fy = 0.5 * height / math.tan(math.radians(fovy) / 2)
     cameras = [CameraModel(n, width, height, fy, fy, width / 2, height / 2) for n in names]
     return model, cameras
+
+
+SUPPORT_SPACING = 0.015  # m between the support points of a spread support
+SUPPORT_RADIUS = 0.004  # m
+SUPPORT_BELOW = 0.001  # m the support points reach below the visible shape
+
+
+def add_support(body, o, geom: dict) -> None:
+    """Hidden spheres (geom group 3, not rendered) on a grid under `o`'s bottom face, touching
+    only the table: the object bears on the table evenly instead of at its corners."""
+    if o.shape == "cylinder":
+        bottom, footprints = -o.half_height, [(np.zeros(2), np.array([o.radius, o.radius]), True)]
+    else:
+        bottom = min(p.centre[2] - p.half[2] for p in o.parts)
+        footprints = [(np.array(p.centre[:2]), np.array(p.half[:2]), False) for p in o.parts
+                      if abs(p.centre[2] - p.half[2] - bottom) < 1e-6]
+    z = bottom + SUPPORT_RADIUS - SUPPORT_BELOW
+    for centre, half, round_ in footprints:
+        nx, ny = (max(2, round(2 * h / SUPPORT_SPACING)) for h in half)
+        for i in range(nx):
+            for j in range(ny):
+                x = -half[0] + 2 * half[0] * (i + 0.5) / nx
+                y = -half[1] + 2 * half[1] * (j + 0.5) / ny
+                if round_ and math.hypot(x, y) > half[0] - SUPPORT_RADIUS:
+                    continue
+                body.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[SUPPORT_RADIUS, 0, 0],
+                              pos=[centre[0] + x, centre[1] + y, z], group=3, contype=1, conaffinity=1,
+                              **{**geom, "rgba": [0, 0, 0, 0]})
 
 
 def tip_target(scene: Scene, t: float) -> np.ndarray:

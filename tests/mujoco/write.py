@@ -186,7 +186,7 @@ def write_truth(out: Path, scene: Scene, run: Run, stamp0: float) -> None:
         truth["parameter"] = run.measured["restitution"]
     first = run.poses[0]
     truth.update(kind=scene.kind, seed=scene.seed, shape=scene.shape, duration=scene.duration,
-                 friction=scene.friction, stamp0=stamp0,
+                 friction=scene.friction, stamp0=stamp0, support=scene.support,
                  objects=[dict(name=o.name, shape=o.shape, mass=o.mass, true_mass=o.true_mass,
                                com_offset=list(o.com_offset)) for o in scene.objects],
                  pushes=[dict(t0=p.t0, t1=p.t1, start=list(p.start), end=list(p.end)) for p in scene.pushes],
