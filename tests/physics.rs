@@ -3,12 +3,12 @@
 
 use glam::{Quat, Vec3};
 use pegs::math::Pose;
-use pegs::physics::PhysicsConfig;
 use pegs::physics::effects::{
     CenterOfMassOffset, ConstantForce, FrictionPatch, MassScale, Restitution, Spring, TableTilt,
     ViscousDrag,
 };
 use pegs::physics::{Effect, Solver};
+use pegs::physics::{GroundPins, PhysicsConfig};
 use pegs::world::{ShapeId, World};
 use pegs::world::{WorldBuilder, box_lattice, cylinder_lattice, t_block_lattice};
 
@@ -975,10 +975,15 @@ fn spin_angle(half: Vec3, omega0: f32, config: PhysicsConfig) -> (f32, f32, f32)
 /// A shape spun on the table bears on it evenly: kinetic friction mu m g acting at each bottom
 /// particle's distance r gives the torque mu m g mean(r), so a spin at omega0 stops after
 /// omega0^2 mean(r^2) / (2 mu g mean(r)). A support at the corners (as MuJoCo's box-plane
-/// contact has) would stop a long bar in about half that angle.
+/// contact has) would stop a long bar in about half that angle. Holds with ground contacts
+/// pinned only where the whole shape sticks (`GroundPins::WholeShape`); with every sticking
+/// contact pinned (the default) the bar turns twice as far.
 #[test]
 fn spinning_bar_stops_after_the_turn_its_even_support_predicts() {
-    let config = undamped();
+    let config = PhysicsConfig {
+        ground_pins: GroundPins::WholeShape,
+        ..undamped()
+    };
     let mu = config.ground.kinetic_friction;
     for (half, omega0) in [
         (Vec3::new(0.095, 0.0175, 0.025), 6.0f32),
@@ -1000,4 +1005,11 @@ fn spinning_bar_stops_after_the_turn_its_even_support_predicts() {
             "{half}: turned {turned} rad, even support predicts {even} rad"
         );
     }
+    // Pinning every sticking contact, a sticking contact near the pivot outweighs the sliding
+    // ones: the same bar turns much further than friction allows.
+    let (turned, mean_radius, mean_square) =
+        spin_angle(Vec3::new(0.095, 0.0175, 0.025), 6.0, undamped());
+    let even = 36.0 * mean_square / (2.0 * mu * G * mean_radius);
+    eprintln!("every sticking contact pinned: turned {turned:.3} rad, even support {even:.3} rad");
+    assert!(turned > 1.5 * even, "turned {turned} rad, even {even} rad");
 }

@@ -29,6 +29,8 @@ pub struct PhysicsConfig {
     /// ground. The rigid body then moves with its contact points, as a rigid body does, instead of
     /// the averaging over all its particles diluting the contact (1 disables it).
     pub pin_weight: f32,
+    /// Which ground contacts held by static friction are pinned in shape matching.
+    pub ground_pins: GroundPins,
     /// Gauss-Seidel sweeps over distance constraints (ropes) per Jacobi iteration, alternating
     /// direction. A 50-link rope swinging from one end stretched by 2.0 % with 1 sweep, 0.5 % with 4.
     pub distance_sweeps: u32,
@@ -49,12 +51,28 @@ impl Default for PhysicsConfig {
             relaxation: 1.0,
             shape_stiffness: 1.0,
             pin_weight: 100.0,
+            ground_pins: GroundPins::EveryStickingContact,
             distance_sweeps: 4,
             ground: GroundConfig::default(),
             collisions: CollisionConfig::default(),
             effects: Vec::new(),
         }
     }
+}
+
+/// Which of a rigid shape's ground contacts held by static friction weigh `pin_weight` in shape
+/// matching.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GroundPins {
+    /// Every sticking contact, whatever the shape's other contacts do (the default, which the
+    /// tracker is tuned with). A sticking contact near the pivot of a spinning or pushed-and-
+    /// turning shape then outweighs the sliding contacts' friction: a spin stops after twice the
+    /// angle Coulomb friction allows.
+    EveryStickingContact,
+    /// Only when static friction holds every ground contact of the shape (it sticks as a whole);
+    /// where some slide, none is pinned, and a spin stops where Coulomb friction stops it.
+    WholeShape,
 }
 
 /// The ground plane `normal . x = height` with Coulomb friction.

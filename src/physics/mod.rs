@@ -14,7 +14,7 @@ mod ground;
 mod shape_matching;
 mod spatial_hash;
 
-pub use config::{CollisionConfig, GroundConfig, PhysicsConfig};
+pub use config::{CollisionConfig, GroundConfig, GroundPins, PhysicsConfig};
 pub use effects::Effect;
 pub use ground::Plane;
 
@@ -405,16 +405,18 @@ impl Solver {
         self.match_rigid_shapes(world);
     }
 
-    /// A rigid shape whose every ground contact sticks is held as a whole: its contacts are pinned
-    /// in shape matching, so forces below static friction (a tilt, a corrective force) do not
-    /// creep it. Where some contacts slide (a spin, a push that turns it), none is: a pinned
-    /// contact would outweigh the sliding ones' friction in the fit and halve the friction torque.
+    /// Ground contacts held by static friction are pinned in shape matching, so forces below
+    /// static friction (a tilt, a corrective force) do not creep a shape: every one of them, or
+    /// with `GroundPins::WholeShape` only those of a shape whose every contact sticks (where some
+    /// slide, as in a spin or a push that turns it, a pinned contact would outweigh the sliding
+    /// ones' friction in the fit and halve the friction torque).
     fn pin_shapes_held_by_the_ground(&mut self, world: &World) {
         let shapes = &world.shapes;
+        let whole = self.config.ground_pins == GroundPins::WholeShape;
         for s in 0..shapes.len() {
             let range = shapes.range(s as ShapeId);
             let grip = &self.grip[range.clone()];
-            if grip.contains(&ground::Grip::Slips) {
+            if whole && grip.contains(&ground::Grip::Slips) {
                 continue;
             }
             for (pinned, grip) in self.pinned[range].iter_mut().zip(grip) {
