@@ -1013,3 +1013,83 @@ fn spinning_bar_stops_after_the_turn_its_even_support_predicts() {
     eprintln!("every sticking contact pinned: turned {turned:.3} rad, even support {even:.3} rad");
     assert!(turned > 1.5 * even, "turned {turned} rad, even {even} rad");
 }
+
+/// A box put 7 mm into a standing pusher (what moving an object where the images show it does
+/// when the model's pusher or object is a few millimetres off the real one): the contact pushes
+/// it out within a substep, which turns the overlap into speed, depth per substep. Settled
+/// (`Solver::settle`), the box leaves the pusher in position but no faster than the settling
+/// speed, and comes to rest within about that tick's travel; unsettled it is thrown.
+#[test]
+fn an_object_put_into_a_pusher_settles_out_of_it_without_being_thrown() {
+    let run_from_overlap = |settle: bool| -> (f32, f32, f32) {
+        let half = Vec3::new(0.05, 0.05, 0.025);
+        let mut b = WorldBuilder::new();
+        let bx = b.add_rigid(
+            "box",
+            &box_lattice(half, SPACING),
+            R,
+            M,
+            Pose::from_translation(Vec3::new(0.0, 0.0, resting_height(half.z))),
+            Vec3::ONE,
+        );
+        // A plate of the box's lattice, its rows level with the box's, reaching 7 mm into the
+        // box's rear row.
+        let plate = box_lattice(Vec3::new(0.01, half.y, half.z), SPACING);
+        let front = plate.iter().map(|p| p.x).fold(f32::MIN, f32::max);
+        let rear = box_lattice(half, SPACING)
+            .iter()
+            .map(|p| p.x)
+            .fold(f32::MAX, f32::min);
+        let at = Vec3::new(rear - 2.0 * R - front + 0.007, 0.0, resting_height(half.z));
+        let pusher = b.add_kinematic("pusher", &plate, R, Pose::from_translation(at), Vec3::ONE);
+        let mut w = b.build();
+        let p = &w.particles;
+        let mut depth = 0.0f32;
+        for i in w.shapes.range(bx) {
+            for j in w.shapes.range(pusher) {
+                depth = depth.max(2.0 * R - p.position[i].distance(p.position[j]));
+            }
+        }
+        let mut solver = Solver::new(PhysicsConfig::default(), &w).unwrap();
+        if settle {
+            solver.settle(bx);
+        }
+        let start = w.shape_centroid(bx);
+        let mut fastest = 0.0f32;
+        for _ in 0..30 {
+            solver.step(&mut w).unwrap();
+            let range = w.shapes.range(bx);
+            let n = range.len() as f32;
+            let v = range.map(|i| w.particles.velocity[i]).sum::<Vec3>() / n;
+            fastest = fastest.max(v.length());
+        }
+        (depth, fastest, w.shape_centroid(bx).distance(start))
+    };
+    let (depth, thrown, flown) = run_from_overlap(false);
+    let (_, settled, moved) = run_from_overlap(true);
+    eprintln!(
+        "overlap {:.1} mm: unsettled fastest {thrown:.2} m/s, moved {:.1} mm; settled {settled:.2} m/s, {:.1} mm",
+        depth * 1e3,
+        flown * 1e3,
+        moved * 1e3
+    );
+    assert!(depth > 0.005, "the box starts {depth} m into the pusher");
+    assert!(thrown > 1.0, "unsettled, the overlap left {thrown} m/s");
+    assert!(
+        settled <= pegs::physics::SETTLING_SPEED + 1e-3,
+        "settled, the box reached {settled} m/s"
+    );
+    // Out of the overlap, plus at most a tick at the settling speed and its stop by friction.
+    let v = pegs::physics::SETTLING_SPEED;
+    let dt = PhysicsConfig::default().dt;
+    let friction = PhysicsConfig::default().ground.kinetic_friction;
+    let bound = depth + v * dt + v * v / (2.0 * friction * G);
+    assert!(
+        moved < bound,
+        "settled, the box moved {moved} m (bound {bound})"
+    );
+    assert!(
+        moved > 0.5 * depth,
+        "settled, the box stayed in the pusher ({moved} m)"
+    );
+}

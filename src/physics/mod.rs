@@ -1,7 +1,9 @@
 //! Predict: position-based dynamics (spec section 2). One `Solver::step` advances the world by one
 //! tick of `substeps` substeps; each substep integrates gravity, external forces and effects, then
 //! runs `iterations` Jacobi sweeps over ground, contacts, distance constraints and shape matching,
-//! and finally derives velocities from positions. Velocities are damped once per tick.
+//! and finally derives velocities from positions. Velocities are damped once per tick. A shape put
+//! into an overlap from outside (a relocation) can be settled for one tick (`Solver::settle`): its
+//! speed is capped while the contacts push it out.
 //!
 //! The solver owns scratch buffers and the effect model bound to the world; the world itself stays
 //! plain data. Nothing here renders or reads sensors.
@@ -78,8 +80,15 @@ pub struct Solver {
     neighbours: NeighbourLists,
     tick_start: Vec<Pose>,
     attachments: distance::LongRangeAttachments,
+    /// Shapes whose speed the coming tick caps at `SETTLING_SPEED` (`settle`).
+    settling: Vec<ShapeId>,
     pub stats: TickStats,
 }
+
+/// Fastest (m/s) a settling shape's particles move: an overlap it was put into is pushed out in
+/// position within a substep, which would otherwise leave it with the overlap's depth per substep
+/// as speed (7 mm in 1.7 ms is 4 m/s). About a pusher's speed, so a pushed object keeps up.
+pub const SETTLING_SPEED: f32 = 0.3;
 
 impl Solver {
     /// A solver for `world` with `config` (validated; effects bound to the world's objects).
@@ -104,6 +113,7 @@ impl Solver {
             neighbours: NeighbourLists::default(),
             tick_start: Vec::new(),
             attachments: distance::LongRangeAttachments::default(),
+            settling: Vec::new(),
             stats: TickStats::default(),
         };
         solver.bind(world)?;
@@ -158,6 +168,14 @@ impl Solver {
         self.stats.ground_contacts = vec![0; ns];
         self.bound_to = (n, ns);
         Ok(())
+    }
+
+    /// For the coming tick, `shape` moves no faster than `SETTLING_SPEED`: it was put where it may
+    /// overlap others (an object moved where the images show it, into a pusher whose model
+    /// differs by millimetres from the real one), and the overlap is to be resolved in position
+    /// without being turned into speed.
+    pub fn settle(&mut self, shape: ShapeId) {
+        self.settling.push(shape);
     }
 
     /// Advance one tick, kinematic shapes moving towards their targets.
@@ -481,6 +499,12 @@ impl Solver {
             .for_each(|(i, (v, x))| {
                 *v = (*x - prev[i]) / h;
             });
+        for &s in &self.settling {
+            for i in world.shapes.range(s) {
+                let v = &mut world.particles.velocity[i];
+                *v = v.clamp_length_max(SETTLING_SPEED);
+            }
+        }
     }
 
     /// Before contacts are solved: each bouncing shape's speed along the ground normal.
@@ -527,6 +551,7 @@ impl Solver {
     }
 
     fn finish_tick(&mut self, world: &mut World) {
+        self.settling.clear();
         let damping = self.config.damping;
         let p = &mut world.particles;
         for i in 0..p.len() {

@@ -132,6 +132,9 @@ impl Tracker {
                 &full,
                 &stats.agreement,
             )?;
+            for event in &relocated {
+                self.solver.settle(event.shape);
+            }
             report.track_events.extend(relocated);
             report.correction = Some(stats);
             report.cameras_used = views.len();
