@@ -38,16 +38,21 @@ fn run(world: &mut World, solver: &mut Solver, ticks: usize, mut each: impl FnMu
     }
 }
 
-fn box_on_ground(half: Vec3, x: Vec3) -> (World, ShapeId) {
-    let mut b = WorldBuilder::new();
-    let s = b.add_rigid(
+/// A box of half extents `half` resting on the ground at `x` (its x and y).
+fn add_resting_box(b: &mut WorldBuilder, half: Vec3, x: Vec3) -> ShapeId {
+    b.add_rigid(
         "box",
         &box_lattice(half, SPACING),
         R,
         M,
         Pose::from_translation(Vec3::new(x.x, x.y, resting_height(half.z))),
         Vec3::ONE,
-    );
+    )
+}
+
+fn box_on_ground(half: Vec3, x: Vec3) -> (World, ShapeId) {
+    let mut b = WorldBuilder::new();
+    let s = add_resting_box(&mut b, half, x);
     (b.build(), s)
 }
 
@@ -419,14 +424,7 @@ fn kinematic_pusher_pushes_a_box_without_tunnelling() {
     for speed in [0.2f32, 1.0] {
         let half = Vec3::new(0.05, 0.05, 0.025);
         let mut b = WorldBuilder::new();
-        let bx = b.add_rigid(
-            "box",
-            &box_lattice(half, SPACING),
-            R,
-            M,
-            Pose::from_translation(Vec3::new(0.0, 0.0, resting_height(half.z))),
-            Vec3::ONE,
-        );
+        let bx = add_resting_box(&mut b, half, Vec3::ZERO);
         // A vertical column of particles 5 cm behind the box.
         let start = Vec3::new(-0.1, 0.0, 0.03);
         let pusher = b.add_kinematic(
@@ -1024,14 +1022,7 @@ fn an_object_put_into_a_pusher_settles_out_of_it_without_being_thrown() {
     let run_from_overlap = |settle: bool| -> (f32, f32, f32) {
         let half = Vec3::new(0.05, 0.05, 0.025);
         let mut b = WorldBuilder::new();
-        let bx = b.add_rigid(
-            "box",
-            &box_lattice(half, SPACING),
-            R,
-            M,
-            Pose::from_translation(Vec3::new(0.0, 0.0, resting_height(half.z))),
-            Vec3::ONE,
-        );
+        let bx = add_resting_box(&mut b, half, Vec3::ZERO);
         // A plate of the box's lattice, its rows level with the box's, reaching 7 mm into the
         // box's rear row.
         let plate = box_lattice(Vec3::new(0.01, half.y, half.z), SPACING);
