@@ -615,6 +615,14 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
                     "explained by {}",
                     o.explained_by.as_deref().unwrap_or("another object")
                 ),
+                Verdict::NotConfirmed => format!(
+                    "{} not confirmed: the replay with it predicts worse ({:.1} -> {:.1} mm at 1 s)",
+                    o.not_confirmed
+                        .as_ref()
+                        .map_or("an effect", |f| f.effect.as_str()),
+                    o.before.open_loop_error_mm,
+                    o.after.open_loop_error_mm
+                ),
                 _ => "no significant missing physics in the effect library".to_string(),
             };
             println!("{}: {why}", o.object);

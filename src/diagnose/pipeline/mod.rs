@@ -10,8 +10,9 @@ mod refine;
 mod show;
 mod study;
 
-use super::report::Report;
+use super::report::{Report, Verdict};
 use crate::config::{Config, ModelFile};
+use crate::physics::effects::Effect;
 use crate::replay::{self, Metrics, ReplayOptions};
 use crate::trace::Trace;
 use anyhow::{Context, Result};
@@ -111,7 +112,7 @@ pub fn diagnose(
     for object in &objects {
         studies.push(study::study(trace, &plan, object, &objects)?);
     }
-    study::one_mass_change(&mut studies);
+    study::one_mass_change(trace, &plan, &mut studies)?;
     let effects = refine::refine_named(recording, config, out, &plan, &mut studies)?;
     let model = ModelFile {
         source: format!("pegs diagnose {}", recording.display()),
@@ -121,7 +122,11 @@ pub fn diagnose(
     model.save(&model_path)?;
     refine::explain_by_others(trace, &model, &mut studies)?;
     let after = show::replay_after(recording, config, out, &plan, &model)?;
-    show::report(
+    let terms: Vec<Option<Effect>> = studies
+        .iter()
+        .map(|s| s.chosen.as_ref().and_then(|f| f.effect_term.clone()))
+        .collect();
+    let report = show::report(
         out,
         recording,
         &model_path,
@@ -130,5 +135,26 @@ pub fn diagnose(
         &before,
         after.as_ref(),
         studies,
-    )
+    )?;
+    // The model file keeps only the effects the replay with them confirmed.
+    let confirmed: Vec<Effect> = report
+        .objects
+        .iter()
+        .zip(terms)
+        .filter(|(o, _)| o.verdict == Verdict::Named)
+        .filter_map(|(_, term)| term)
+        .collect();
+    if confirmed.len() < model.effects.len() {
+        plan.say(format!(
+            "{} named effect(s) not confirmed by the replay with them: left out of {}",
+            model.effects.len() - confirmed.len(),
+            model_path.display()
+        ));
+        ModelFile {
+            effects: confirmed,
+            ..model
+        }
+        .save(&model_path)?;
+    }
+    Ok(report)
 }

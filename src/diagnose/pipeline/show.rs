@@ -8,7 +8,7 @@ use super::{Plan, traced_replay};
 use crate::config::{Config, ModelFile};
 use crate::diagnose::candidates;
 use crate::diagnose::plots;
-use crate::diagnose::report::{ObjectReport, Outcome, Parameter, Report, Verdict};
+use crate::diagnose::report::{ObjectReport, Outcome, Parameter, Report, Verdict, confirmed};
 use crate::diagnose::select::{self, SelectOptions};
 use crate::replay::Metrics;
 use crate::trace::{Prediction, Sample, Trace};
@@ -159,13 +159,20 @@ fn outcome(predictions: &[Prediction], samples: &[Sample], run: &Metrics, object
 }
 
 fn object_report(
-    study: Study,
+    mut study: Study,
     relocated: Vec<crate::trace::Jump>,
     before: Outcome,
     after: Outcome,
     folds: Vec<[f64; 2]>,
     train_fraction: f64,
 ) -> ObjectReport {
+    // A named effect that the replay with it does not bear out is reported as such, not named.
+    let not_confirmed = if study.chosen.is_some() && !confirmed(&before, &after) {
+        study.explained.clear();
+        study.chosen.take()
+    } else {
+        None
+    };
     let mut parameters = Vec::new();
     let mut residual_explained_fraction = None;
     if let Some(f) = &study.chosen {
@@ -203,11 +210,15 @@ fn object_report(
             residual_explained_fraction = single.found.first().map(|x| x.explained_fraction);
         }
     }
-    let verdict = Verdict::of(
-        study.chosen.is_some(),
-        study.explained_by.is_some(),
-        super::study::judgeable(&study.folds, &study.pushed),
-    );
+    let verdict = if not_confirmed.is_some() {
+        Verdict::NotConfirmed
+    } else {
+        Verdict::of(
+            study.chosen.is_some(),
+            study.explained_by.is_some(),
+            super::study::judgeable(&study.folds, &study.pushed),
+        )
+    };
     let named_on = study.refined_from.as_ref().or(study.chosen.as_ref());
     let free_explained_fraction = named_on
         .filter(|_| study.pushed.contains(&true))
@@ -242,6 +253,7 @@ fn object_report(
             .refined_from
             .as_ref()
             .or(study.chosen.as_ref())
+            .filter(|_| study.chosen.is_some())
             .map_or(0.0, |f| f.heldout_gain()),
         named_fit: study.refined_from,
         residual_explained_fraction,
@@ -251,6 +263,7 @@ fn object_report(
         folds,
         candidates: study.fits,
         regression: study.regression,
+        not_confirmed,
         before,
         after,
     }

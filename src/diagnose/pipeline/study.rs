@@ -18,6 +18,7 @@ use crate::diagnose::candidates;
 use crate::diagnose::locate::{self, Located, Mismatch};
 use crate::diagnose::refit::{self, Fit};
 use crate::diagnose::select::{self, SelectOptions};
+use crate::physics::PhysicsConfig;
 use crate::physics::effects::{FAMILIES, Family, FitSetting};
 use crate::trace::{Prediction, Sample, Trace};
 use crate::world::ShapeId;
@@ -341,30 +342,74 @@ fn choose(
 }
 
 /// Masses show only as ratios between objects that collide: a box struck by one heavier than
-/// modelled fits a lighter mass of its own as well. Of several objects named a mass change,
-/// only the one whose change cuts the held-out error most keeps it.
-pub fn one_mass_change(studies: &mut [Study]) {
-    let chosen: Vec<Option<&Fit>> = studies.iter().map(|s| s.chosen.as_ref()).collect();
-    let dropped = mass_changes_to_drop(&chosen);
+/// modelled fits a lighter mass of its own as well. Of several objects named a mass change, only
+/// the one that best predicts every object's windows keeps it: each change is added to the model
+/// and every object's windows are predicted with it, since a mass change acts in every collision
+/// of its object. The lighter struck box explains its own slide; the heavy striker explains that
+/// slide and every other object it struck (judged by each object's own held-out gain instead,
+/// the struck box won because its slide was the larger miss).
+pub fn one_mass_change(trace: &Trace, plan: &Plan, studies: &mut [Study]) -> Result<()> {
+    let mut residual = Vec::new();
+    for (i, study) in studies.iter().enumerate() {
+        let Some(effect) = study
+            .chosen
+            .as_ref()
+            .filter(|f| f.family.is_some_and(|x| x.ratio_between_objects()))
+            .and_then(|f| f.effect_term.clone())
+        else {
+            continue;
+        };
+        let mut physics = trace.physics.clone();
+        physics.effects.push(effect);
+        residual.push((i, squared_error_everywhere(trace, plan, &physics, studies)?));
+    }
+    let dropped = mass_changes_to_drop(&residual);
+    for &(i, left) in &residual {
+        let verdict = if dropped.contains(&i) {
+            "dropped"
+        } else {
+            "kept"
+        };
+        plan.say(format!(
+            "{}: its mass change leaves {:.1} mm^2 over every object's windows ({verdict})",
+            studies[i].name,
+            left * 1e6,
+        ));
+    }
     for i in dropped {
         studies[i].chosen = None;
         studies[i].explained.clear();
     }
+    Ok(())
 }
 
-/// Of the named fits (one per object), the indices of the mass changes to drop: all but the one
-/// with the best held-out gain.
-fn mass_changes_to_drop(chosen: &[Option<&Fit>]) -> Vec<usize> {
-    let mass: Vec<(usize, f64)> = chosen
+/// The summed squared 1 s error (m^2) of every object's windows predicted with `physics`.
+fn squared_error_everywhere(
+    trace: &Trace,
+    plan: &Plan,
+    physics: &PhysicsConfig,
+    studies: &[Study],
+) -> Result<f64> {
+    let mut total = 0.0;
+    for study in studies {
+        let predicted = trace.predict(physics, study.shape, &study.windows, plan.horizon)?;
+        total += predicted
+            .iter()
+            .map(|p| (p.error as f64).powi(2))
+            .sum::<f64>();
+    }
+    Ok(total)
+}
+
+/// Of the objects named a mass change, with the squared error left over every object's windows
+/// when it is added, the indices of those to drop: all but the one that leaves the least.
+fn mass_changes_to_drop(residual: &[(usize, f64)]) -> Vec<usize> {
+    let best = residual
         .iter()
-        .enumerate()
-        .filter_map(|(i, f)| {
-            f.filter(|f| f.family.is_some_and(|x| x.ratio_between_objects()))
-                .map(|f| (i, f.heldout_gain()))
-        })
-        .collect();
-    let best = mass.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|b| b.0);
-    mass.iter()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|b| b.0);
+    residual
+        .iter()
         .map(|m| m.0)
         .filter(|&i| Some(i) != best)
         .collect()
@@ -501,16 +546,12 @@ mod tests {
     }
 
     #[test]
-    fn of_two_objects_named_a_mass_change_only_the_one_that_explains_more_keeps_it() {
-        let heavy = fit("mass_error", &[0.1]);
-        let light = fit("mass_error", &[0.5]);
-        let drag = fit("viscous_drag", &[0.05]);
-        // Held-out gains 0.9 and 0.5: the lighter-box reading is dropped; other effects stay.
-        assert_eq!(
-            mass_changes_to_drop(&[Some(&light), None, Some(&heavy), Some(&drag)]),
-            vec![0]
-        );
-        assert!(mass_changes_to_drop(&[Some(&heavy), Some(&drag)]).is_empty());
+    fn of_two_objects_named_a_mass_change_only_the_one_that_leaves_less_error_keeps_it() {
+        // Objects 0 and 2 named a mass change: with 0's, 3 mm^2 is left over every object's
+        // windows; with 2's, 1 mm^2. 0's is dropped; a lone mass change always stays.
+        assert_eq!(mass_changes_to_drop(&[(0, 3e-6), (2, 1e-6)]), vec![0]);
+        assert!(mass_changes_to_drop(&[(2, 1e-6)]).is_empty());
+        assert!(mass_changes_to_drop(&[]).is_empty());
     }
 
     #[test]
