@@ -19,7 +19,7 @@ use crate::diagnose::locate::{self, Located, Mismatch};
 use crate::diagnose::refit::{self, Fit};
 use crate::diagnose::select::{self, SelectOptions};
 use crate::physics::PhysicsConfig;
-use crate::physics::effects::{FAMILIES, Family, FitSetting};
+use crate::physics::effects::{Effect, FAMILIES, Family, FitSetting};
 use crate::trace::{Prediction, Sample, Trace};
 use crate::world::ShapeId;
 use anyhow::Result;
@@ -349,16 +349,24 @@ fn choose(
 /// slide and every other object it struck (judged by each object's own held-out gain instead,
 /// the struck box won because its slide was the larger miss).
 pub fn one_mass_change(trace: &Trace, plan: &Plan, studies: &mut [Study]) -> Result<()> {
+    let changes: Vec<(usize, Effect)> = studies
+        .iter()
+        .enumerate()
+        .filter_map(|(i, study)| {
+            study
+                .chosen
+                .as_ref()
+                .filter(|f| f.family.is_some_and(|x| x.ratio_between_objects()))
+                .and_then(|f| f.effect_term.clone())
+                .map(|effect| (i, effect))
+        })
+        .collect();
+    // A lone mass change has nothing to be weighed against.
+    if changes.len() < 2 {
+        return Ok(());
+    }
     let mut residual = Vec::new();
-    for (i, study) in studies.iter().enumerate() {
-        let Some(effect) = study
-            .chosen
-            .as_ref()
-            .filter(|f| f.family.is_some_and(|x| x.ratio_between_objects()))
-            .and_then(|f| f.effect_term.clone())
-        else {
-            continue;
-        };
+    for (i, effect) in changes {
         let mut physics = trace.physics.clone();
         physics.effects.push(effect);
         residual.push((i, squared_error_everywhere(trace, plan, &physics, studies)?));
