@@ -7,7 +7,7 @@ use pegs::physics::effects::{
     CenterOfMassOffset, ConstantForce, FrictionPatch, MassScale, Restitution, Spring, TableTilt,
     ViscousDrag,
 };
-use pegs::physics::{Effect, Solver};
+use pegs::physics::{Effect, KinematicDriver, Solver};
 use pegs::physics::{GroundPins, PhysicsConfig};
 use pegs::world::{ShapeId, World};
 use pegs::world::{WorldBuilder, box_lattice, cylinder_lattice, t_block_lattice};
@@ -491,6 +491,78 @@ fn kinematic_pusher_pushes_a_box_without_tunnelling() {
             "box left behind or thrown far ahead"
         );
     }
+}
+
+/// A striker that goes forward and back within one tick: at fraction `f` of the tick it is
+/// `reach * sin(pi f)` ahead of `start`.
+struct StrikeAndReturn {
+    striker: ShapeId,
+    start: Vec3,
+    reach: f32,
+}
+
+impl KinematicDriver for StrikeAndReturn {
+    fn pose_at(&mut self, shape: ShapeId, f: f32) -> Option<Pose> {
+        (shape == self.striker).then(|| {
+            let ahead = self.reach * (std::f32::consts::PI * f).sin();
+            Pose::from_translation(self.start + Vec3::new(ahead, 0.0, 0.0))
+        })
+    }
+}
+
+#[test]
+fn a_strike_over_within_one_tick_is_a_touch_though_the_bodies_have_parted_by_its_end() {
+    let half = Vec3::new(0.05, 0.05, 0.025);
+    let mut b = WorldBuilder::new();
+    let bx = add_resting_box(&mut b, half, Vec3::ZERO);
+    // A rod 1 cm behind the box's rear surface, which strikes 3 cm forward and back in one tick.
+    let start = Vec3::new(-half.x - 2.0 * R - 0.01, 0.0, 0.03);
+    let rod = b.add_kinematic(
+        "rod",
+        &cylinder_lattice(0.005, 0.03, SPACING),
+        R,
+        Pose::from_translation(start),
+        Vec3::ONE,
+    );
+    let mut w = b.build();
+    let mut solver = Solver::new(frictionless(), &w).unwrap();
+    let mut strike = StrikeAndReturn {
+        striker: rod,
+        start,
+        reach: 0.03,
+    };
+    solver.step_driven(&mut w, &mut strike).unwrap();
+    let gap = |w: &World| {
+        let p = &w.particles;
+        w.shapes
+            .range(bx)
+            .flat_map(|i| w.shapes.range(rod).map(move |j| (i, j)))
+            .map(|(i, j)| p.position[i].distance(p.position[j]) - 2.0 * R)
+            .fold(f32::MAX, f32::min)
+    };
+    let speed = w.shape_velocity(bx).x;
+    eprintln!(
+        "struck box at {speed:.3} m/s, {:.1} mm from the rod at the tick's end",
+        gap(&w) * 1e3
+    );
+    assert!(speed > 0.1, "the strike moved the box ({speed} m/s)");
+    assert!(
+        gap(&w) > 0.005,
+        "the bodies have parted by the tick's end ({} mm), so only the substeps saw the touch",
+        gap(&w) * 1e3
+    );
+    let touched = solver.stats.touched[bx as usize];
+    assert!(
+        touched.kinematic && !touched.dynamic,
+        "the strike is a touch of the kinematic rod: {touched:?}"
+    );
+    // The next tick the box glides away from the resting rod: no touch.
+    solver.step(&mut w).unwrap();
+    let touched = solver.stats.touched[bx as usize];
+    assert!(
+        !touched.kinematic && !touched.dynamic,
+        "a box gliding alone touches nothing: {touched:?}"
+    );
 }
 
 /// A spring-like corrective force towards a target (what visual forces do) plus zero-mean noise,

@@ -4,6 +4,8 @@
 
 use super::ground::friction;
 use super::spatial_hash::NeighbourLists;
+use super::{TOUCH_SLACK, Touched};
+use crate::world::{Particles, Phase};
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -71,6 +73,32 @@ pub fn apply_averaged(pos: &mut [Vec3], delta: &[Vec3], count: &[u32], relaxatio
                 *x += relaxation * delta[i] / count[i] as f32;
             }
         });
+}
+
+/// Marks in `touched` (per shape) the kinds of bodies each shape's pushable particles touch at
+/// their current positions: a kinematic one, or a particle of another dynamic shape.
+pub fn note_touches(p: &Particles, lists: &NeighbourLists, touched: &mut [Touched]) {
+    for i in 0..p.len() {
+        let Some(mine) = touched.get(p.shape[i] as usize).copied() else {
+            continue;
+        };
+        if p.phase[i] != Phase::Dynamic || (mine.kinematic && mine.dynamic) {
+            continue;
+        }
+        let mut now = mine;
+        for &j in lists.of(i) {
+            let j = j as usize;
+            if p.position[i].distance(p.position[j]) > p.radius[i] + p.radius[j] + TOUCH_SLACK {
+                continue;
+            }
+            match p.phase[j] {
+                Phase::Kinematic => now.kinematic = true,
+                Phase::Dynamic => now.dynamic = true,
+                Phase::Static => {}
+            }
+        }
+        touched[p.shape[i] as usize] = now;
+    }
 }
 
 #[cfg(test)]

@@ -54,7 +54,32 @@ pub struct TickStats {
     pub rejected_forces: usize,
     /// Kinematic poses ignored in the last tick because they were not finite (shape kept its pose).
     pub rejected_poses: usize,
+    /// Per shape: the bodies it touched in any substep of the last tick. A hard strike can be
+    /// over within a tick, the struck object gone from the striker by the tick's end.
+    pub touched: Vec<Touched>,
 }
+
+/// Which kinds of body a shape touched (within `TOUCH_SLACK`) during a tick.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Touched {
+    /// A kinematic body: the robot, or a scripted pusher.
+    pub kinematic: bool,
+    /// Another dynamic shape.
+    pub dynamic: bool,
+}
+
+impl Touched {
+    /// Both ticks' touches (for ticks reported as one).
+    pub fn or(self, other: Touched) -> Touched {
+        Touched {
+            kinematic: self.kinematic || other.kinematic,
+            dynamic: self.dynamic || other.dynamic,
+        }
+    }
+}
+
+/// Gap (m) between two particles' surfaces within which they count as touching.
+pub const TOUCH_SLACK: f32 = 0.001;
 
 pub struct Solver {
     config: PhysicsConfig,
@@ -204,6 +229,10 @@ impl Solver {
         let h = self.config.dt / substeps as f32;
         self.sanitise_inputs(world);
         self.tick_start.clone_from(&world.shapes.pose);
+        self.stats.touched.clear();
+        self.stats
+            .touched
+            .resize(world.shapes.len(), Touched::default());
         for sub in 0..substeps {
             let fraction = (sub + 1) as f32 / substeps as f32;
             self.place_kinematic(world, driver, fraction);
@@ -214,6 +243,9 @@ impl Solver {
             }
             for iteration in 0..self.config.iterations {
                 self.solve_constraints(world, iteration);
+            }
+            if self.config.collisions.enabled {
+                collide::note_touches(&world.particles, &self.neighbours, &mut self.stats.touched);
             }
             self.update_velocities(world, h);
             self.bounce(world, h);

@@ -4,6 +4,7 @@
 
 use crate::correct::CorrectStats;
 use crate::math::rotation_angle_between;
+use crate::physics::{TOUCH_SLACK, Touched};
 use crate::tracker::{Observer, Tick};
 use crate::world::{Phase, ShapeId, World};
 use anyhow::{Context, Result};
@@ -25,7 +26,9 @@ pub struct Sample {
     /// Modelled mass, kg, and inertia about the vertical axis through the centre of mass, kg m^2.
     pub mass: f32,
     pub inertia_z: f32,
-    /// Contacts: with the ground, with a kinematic body (robot) and with another object.
+    /// Contacts: with the ground at the tick's end; with a kinematic body (robot) and with
+    /// another object at the tick's end or in any substep of it (a strike can be over within a
+    /// tick).
     pub on_ground: bool,
     pub touching_robot: bool,
     pub touching_object: bool,
@@ -59,9 +62,6 @@ impl Sample {
     }
 }
 
-/// Extra distance (m) within which particles count as touching.
-const CONTACT_SLACK: f32 = 0.001;
-
 /// Remembers the previous tick to difference velocities and rotations.
 #[derive(Default)]
 pub struct ResidualLog {
@@ -80,6 +80,7 @@ impl Observer for ResidualLog {
         self.record(
             tick.tracker.world(),
             correction,
+            &tick.report.touched,
             ground,
             tick.inputs.time,
             physics.dt,
@@ -100,11 +101,13 @@ impl ResidualLog {
         std::fs::write(path, csv).with_context(|| format!("cannot write {}", path.display()))
     }
 
-    /// Log every dynamic shape of `world` after a tick of length `dt` that ended at `t`.
+    /// Log every dynamic shape of `world` after a tick of length `dt` that ended at `t`, in which
+    /// the physics saw each shape touch `touched` (per shape; empty when unknown).
     pub fn record(
         &mut self,
         world: &World,
         stats: Option<&CorrectStats>,
+        touched: &[Touched],
         ground: Option<(Vec3, f32)>,
         t: f64,
         dt: f32,
@@ -137,7 +140,10 @@ impl ResidualLog {
             self.previous[i] = Some((velocity, rotation));
             let r = Mat3::from_quat(rotation);
             let inertia_world = r * world.shapes.inertia[i] * r.transpose();
-            let (on_ground, touching_robot, touching_object) = contacts(world, s, ground);
+            let (on_ground, robot_now, object_now) = contacts(world, s, ground);
+            let during = touched.get(i).copied().unwrap_or_default();
+            let (touching_robot, touching_object) =
+                (robot_now || during.kinematic, object_now || during.dynamic);
             self.samples.push(Sample {
                 t,
                 object: world.shapes.name[i].clone(),
@@ -167,7 +173,7 @@ fn contacts(world: &World, shape: ShapeId, ground: Option<(Vec3, f32)>) -> (bool
     let mine = world.shapes.range(shape);
     let on_ground = ground.is_some_and(|(n, h)| {
         mine.clone()
-            .any(|i| n.dot(p.position[i]) - h <= p.radius[i] + CONTACT_SLACK)
+            .any(|i| n.dot(p.position[i]) - h <= p.radius[i] + TOUCH_SLACK)
     });
     // Bounding sphere of the shape, to skip far particles.
     let centre = world.shape_centroid(shape);
@@ -179,7 +185,7 @@ fn contacts(world: &World, shape: ShapeId, ground: Option<(Vec3, f32)>) -> (bool
     for j in 0..p.len() {
         if mine.contains(&j)
             || p.phase[j] == Phase::Static
-            || p.position[j].distance(centre) > reach + p.radius[j] + CONTACT_SLACK
+            || p.position[j].distance(centre) > reach + p.radius[j] + TOUCH_SLACK
         {
             continue;
         }
@@ -188,7 +194,7 @@ fn contacts(world: &World, shape: ShapeId, ground: Option<(Vec3, f32)>) -> (bool
             continue;
         }
         if mine.clone().any(|i| {
-            p.position[i].distance(p.position[j]) <= p.radius[i] + p.radius[j] + CONTACT_SLACK
+            p.position[i].distance(p.position[j]) <= p.radius[i] + p.radius[j] + TOUCH_SLACK
         }) {
             if kinematic {
                 robot = true;
@@ -236,7 +242,7 @@ mod tests {
         let mut world = b.build();
         let mut log = ResidualLog::default();
         let ground = Some((Vec3::Z, 0.0));
-        log.record(&world, None, ground, 0.0, 0.1);
+        log.record(&world, None, &[], ground, 0.0, 0.1);
         // Move and turn the box as a rigid body over one 0.1 s tick, with velocity 0.2 m/s along x.
         world.move_shape(
             s,
@@ -250,7 +256,16 @@ mod tests {
             torque: vec![Vec3::new(0.0, 0.0, 0.01), Vec3::ZERO, Vec3::ZERO],
             ..Default::default()
         };
-        log.record(&world, Some(&stats), ground, 0.1, 0.1);
+        // The far box touched the robot during the tick (a strike), though apart at its end.
+        let during = [
+            Touched::default(),
+            Touched::default(),
+            Touched {
+                kinematic: true,
+                dynamic: false,
+            },
+        ];
+        log.record(&world, Some(&stats), &during, ground, 0.1, 0.1);
         let first = &log.samples[0];
         assert!(
             first.on_ground && first.touching_robot && !first.touching_object,
@@ -259,6 +274,11 @@ mod tests {
         assert!(
             !log.samples[1].touching_robot,
             "the far box touches nothing but the ground"
+        );
+        let struck = &log.samples[3];
+        assert!(
+            struck.touching_robot && !struck.touching_object,
+            "a touch the physics saw during the tick counts: {struck:?}"
         );
         let moved = &log.samples[2];
         assert_eq!(moved.object, "box");

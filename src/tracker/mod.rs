@@ -16,7 +16,7 @@ use crate::config::Config;
 use crate::correct::{CorrectConfig, CorrectStats, Corrector, relocate};
 use crate::inputs::{Inputs, TickInputs};
 use crate::math::Pose;
-use crate::physics::{PhysicsConfig, Solver};
+use crate::physics::{PhysicsConfig, Solver, Touched};
 use crate::render::Camera;
 use crate::robot::{JointTrajectory, RobotInWorld};
 use crate::scene::Scene;
@@ -65,11 +65,23 @@ pub struct TickReport {
     /// Non-finite visual forces and robot poses the physics refused in this tick.
     pub rejected_forces: usize,
     pub rejected_poses: usize,
+    /// Per shape: the bodies it touched during the tick's prediction (ticks caught up included).
+    pub touched: Vec<Touched>,
     /// Wall time of the prediction (catching up included) and of the correction, ms.
     pub predict_ms: f64,
     pub correct_ms: f64,
     /// Objects lost or found again in this tick (`health`).
     pub track_events: Vec<TrackEvent>,
+}
+
+impl TickReport {
+    /// Adds one physics step's touches to the tick's.
+    fn note_touches(&mut self, step: &[Touched]) {
+        self.touched.resize(step.len(), Touched::default());
+        for (all, now) in self.touched.iter_mut().zip(step) {
+            *all = all.or(*now);
+        }
+    }
 }
 
 impl Tracker {
@@ -112,6 +124,7 @@ impl Tracker {
         let clock = Instant::now();
         let mut report = self.catch_up(inputs.time)?;
         self.scene.advance(&mut self.solver)?;
+        report.note_touches(&self.solver.stats.touched);
         report.rejected_forces = self.solver.stats.rejected_forces;
         report.rejected_poses = self.solver.stats.rejected_poses;
         report.predict_ms = clock.elapsed().as_secs_f64() * 1e3;
@@ -228,6 +241,7 @@ impl Tracker {
         report.caught_up = behind.min(MAX_CATCH_UP_TICKS);
         for _ in 0..report.caught_up {
             self.scene.advance(&mut self.solver)?;
+            report.note_touches(&self.solver.stats.touched);
         }
         Ok(report)
     }
