@@ -50,6 +50,17 @@ fn add_resting_box(b: &mut WorldBuilder, half: Vec3, x: Vec3) -> ShapeId {
     )
 }
 
+/// A kinematic vertical cylinder of particles (a pusher) of `radius` and `height` at `x`.
+fn add_pusher(b: &mut WorldBuilder, radius: f32, height: f32, x: Vec3) -> ShapeId {
+    b.add_kinematic(
+        "pusher",
+        &cylinder_lattice(radius, height, SPACING),
+        R,
+        Pose::from_translation(x),
+        Vec3::ONE,
+    )
+}
+
 fn box_on_ground(half: Vec3, x: Vec3) -> (World, ShapeId) {
     let mut b = WorldBuilder::new();
     let s = add_resting_box(&mut b, half, x);
@@ -427,13 +438,7 @@ fn kinematic_pusher_pushes_a_box_without_tunnelling() {
         let bx = add_resting_box(&mut b, half, Vec3::ZERO);
         // A vertical column of particles 5 cm behind the box.
         let start = Vec3::new(-0.1, 0.0, 0.03);
-        let pusher = b.add_kinematic(
-            "pusher",
-            &cylinder_lattice(0.01, 0.05, SPACING),
-            R,
-            Pose::from_translation(start),
-            Vec3::ONE,
-        );
+        let pusher = add_pusher(&mut b, 0.01, 0.05, start);
         let mut w = b.build();
         let mut solver = Solver::new(PhysicsConfig::default(), &w).unwrap();
         let ticks = (0.4 / speed / solver.config().dt).round() as usize; // 0.4 m of travel
@@ -517,13 +522,7 @@ fn a_strike_over_within_one_tick_is_a_touch_though_the_bodies_have_parted_by_its
     let bx = add_resting_box(&mut b, half, Vec3::ZERO);
     // A rod 1 cm behind the box's rear surface, which strikes 3 cm forward and back in one tick.
     let start = Vec3::new(-half.x - 2.0 * R - 0.01, 0.0, 0.03);
-    let rod = b.add_kinematic(
-        "rod",
-        &cylinder_lattice(0.005, 0.03, SPACING),
-        R,
-        Pose::from_translation(start),
-        Vec3::ONE,
-    );
+    let rod = add_pusher(&mut b, 0.005, 0.03, start);
     let mut w = b.build();
     let mut solver = Solver::new(frictionless(), &w).unwrap();
     let mut strike = StrikeAndReturn {
