@@ -3,7 +3,8 @@
 //! runs `iterations` Jacobi sweeps over ground, contacts, distance constraints and shape matching,
 //! and finally derives velocities from positions. Velocities are damped once per tick. A shape put
 //! into an overlap from outside (a relocation) can be settled for one tick (`Solver::settle`): its
-//! speed is capped while the contacts push it out.
+//! speed is capped while the contacts push it out. What each shape touched in any substep is kept
+//! in `TickStats::touched` (a strike can be over before the tick ends).
 //!
 //! The solver owns scratch buffers and the effect model bound to the world; the world itself stays
 //! plain data. Nothing here renders or reads sensors.
