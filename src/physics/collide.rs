@@ -78,11 +78,11 @@ pub fn apply_averaged(pos: &mut [Vec3], delta: &[Vec3], count: &[u32], relaxatio
 /// Marks in `touched` (per shape) the kinds of bodies each shape's pushable particles touch at
 /// their current positions: a kinematic one, or a particle of another dynamic shape.
 pub fn note_touches(p: &Particles, lists: &NeighbourLists, touched: &mut [Touched]) {
-    for i in 0..p.len() {
+    for i in (0..p.len()).filter(|&i| p.phase[i] == Phase::Dynamic) {
         let Some(mine) = touched.get(p.shape[i] as usize).copied() else {
             continue;
         };
-        if p.phase[i] != Phase::Dynamic || (mine.kinematic && mine.dynamic) {
+        if mine.kinematic && mine.dynamic {
             continue;
         }
         let mut now = mine;

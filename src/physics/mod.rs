@@ -245,7 +245,7 @@ impl Solver {
             for iteration in 0..self.config.iterations {
                 self.solve_constraints(world, iteration);
             }
-            if self.config.collisions.enabled {
+            if self.config.collisions.enabled && self.neighbours.pair_count() > 0 {
                 collide::note_touches(&world.particles, &self.neighbours, &mut self.stats.touched);
             }
             self.update_velocities(world, h);

@@ -119,7 +119,6 @@ pub fn diagnose(
         effects,
     };
     let model_path = out.join("model.yaml");
-    model.save(&model_path)?;
     refine::explain_by_others(trace, &model, &mut studies)?;
     let after = show::replay_after(recording, config, out, &plan, &model)?;
     let terms: Vec<Option<Effect>> = studies
@@ -150,11 +149,11 @@ pub fn diagnose(
             model.effects.len() - confirmed.len(),
             model_path.display()
         ));
-        ModelFile {
-            effects: confirmed,
-            ..model
-        }
-        .save(&model_path)?;
     }
+    ModelFile {
+        effects: confirmed,
+        ..model
+    }
+    .save(&model_path)?;
     Ok(report)
 }
