@@ -85,7 +85,9 @@ pub fn diagnostics(
     let mut all = vec![tick_status(window, stats, dt)];
     all.extend(camera_statuses(s, tick, window));
     all.push(inputs_status(s));
-    all.extend(robot_status(s, stats.ticks as f64 * dt));
+    // Skipped ticks are tracked time too: a node slower than its rate still reaches the deadline.
+    let tracked_s = (stats.ticks + stats.skipped_ticks) as f64 * dt;
+    all.extend(robot_status(s, tracked_s));
     all.push(tracking_status(tick, window));
     all.extend(objects.iter().map(object_status));
     Some(DiagnosticArray {

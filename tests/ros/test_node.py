@@ -427,7 +427,8 @@ def test_node_runs_without_camera_info_for_one_camera(recording, ros):
     # Twice through: the node waits a few seconds for the missing CameraInfo before it starts.
     for _ in range(2):
         player.cursor = 0
-        player.begin(time.time() + 0.2)
+        begin = time.time() + 0.2
+        player.begin(begin)
         spin_for(node, RUN_SECONDS + 0.5, player)
     stats = stop_node(proc, stats_path)
     node.destroy_node()
@@ -435,7 +436,9 @@ def test_node_runs_without_camera_info_for_one_camera(recording, ros):
     assert "camera cam2: no CameraInfo" in log
     assert recorder.count("objects") > 30, "tracking went on with two cameras"
     assert stats["ticks"] > 30
-    status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
+    # Judged on the last report sent while images flowed (after that cam0 has no fresh image).
+    reports = [msg for t, msg in recorder.got["diagnostics"] if t <= begin + RUN_SECONDS]
+    status = {s.name: s for s in reports[-1].status}
     assert level(status["pegs: camera cam2"]) == 2 and "no CameraInfo" in status["pegs: camera cam2"].message
     assert level(status["pegs: camera cam0"]) == 0
 
@@ -592,11 +595,22 @@ def test_fr3_joint_names_drive_the_panda_urdf_with_a_prefix_parameter(recording,
         wait_for_discovery(node, player)
         player.begin(time.time() + 0.2)
         spin_for(node, RUN_SECONDS + 0.5, player)
-        stop_node(proc, stats_path)
+
+        def robot_status():
+            reports = recorder.got.get("diagnostics", [])
+            status = {s.name: s for s in reports[-1][1].status} if reports else {}
+            return status, status.get("pegs: robot")
+
+        # A slow machine may start tracking late: the deadline counts tracked seconds, so wait (the
+        # node keeps ticking on its wall clock) until the robot is no longer waiting, 10 s at most.
+        end = time.time() + 10.0
+        while time.time() < end and (robot_status()[1] is None or robot_status()[1].message == "waiting for joint states"):
+            spin_for(node, 0.2)
+        stats = stop_node(proc, stats_path)
         node.destroy_node()
-        status = {s.name: s for s in recorder.got["diagnostics"][-1][1].status}
-        robot = status["pegs: robot"]
-        assert level(robot) == expected, f"{name}: {robot.message}"
+        status, robot = robot_status()
+        assert robot is not None, f"{name}: no robot status in {list(status)}"
+        assert level(robot) == expected, f"{name}: {robot.message} (ticks {stats.get('ticks')}, skipped {stats.get('skipped_ticks')})"
         inputs = {v.key: v.value for v in status["pegs: inputs"].values}
         if expected:
             assert "robot.joint_prefix_received" in robot.message and "fr3_joint1" in robot.message, robot.message
