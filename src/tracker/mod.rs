@@ -204,6 +204,7 @@ impl Tracker {
                 continue;
             }
             world.move_shape(shape, found.pose.mul(&here.inverse()));
+            corrector.forget(world, shape);
             health.relocated(shape);
             well_tracked[s] = Some(found.pose);
             let turn = crate::math::rotation_angle_between(here.rotation, found.pose.rotation);
