@@ -93,6 +93,20 @@ impl Adam {
         }
     }
 
+    /// Each group's RMS gradient over the steps since `reset`, sqrt(v_hat), for the first `n`
+    /// parameters (0 before the first step).
+    pub fn rms(&self, n: usize) -> Vec<f32> {
+        let c2 = 1.0 - self.beta2.powi(self.step);
+        if self.step == 0 || c2 <= 0.0 {
+            return vec![0.0; n.div_ceil(self.group)];
+        }
+        self.v[..n]
+            .iter()
+            .step_by(self.group)
+            .map(|v| (v / c2).sqrt())
+            .collect()
+    }
+
     /// The median over the first `n` parameters' groups of sqrt(v_hat); 0 when the floor is off.
     fn median_rms(&mut self, n: usize, c2: f32) -> f32 {
         if self.noise_floor == 0.0 || n == 0 {
@@ -115,6 +129,28 @@ impl Adam {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_rms_gradient_of_a_steady_gradient_is_its_size_whatever_the_steps() {
+        // Grouped as a Gaussian's mean: one RMS over x, y, z.
+        let mut adam = Adam::new(0.9, 0.999, 1e-8).grouped(3);
+        adam.reset(6);
+        assert_eq!(
+            adam.rms(6),
+            vec![0.0, 0.0],
+            "nothing measured before a step"
+        );
+        let grads = [3.0, 0.0, 4.0, 0.0, 0.5, 0.0];
+        let mut params = [0.0; 6];
+        for _ in 0..5 {
+            adam.step(&mut params, &grads, 0.01);
+        }
+        let rms = adam.rms(6);
+        let expected = [(25.0f32 / 3.0).sqrt(), (0.25f32 / 3.0).sqrt()];
+        for (r, e) in rms.iter().zip(expected) {
+            assert!((r - e).abs() < 1e-4 * e, "{rms:?} vs {expected:?}");
+        }
+    }
 
     #[test]
     fn first_step_moves_each_parameter_by_the_learning_rate_against_its_gradient() {

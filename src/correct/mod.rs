@@ -64,6 +64,11 @@ pub struct CorrectConfig {
     /// enough to beat static friction, soft enough not to ring on a slippery table. 0: off.
     pub integral: f32,
     pub integral_leak: f32,
+    /// A rigid object's Gaussians push it in proportion to their RMS gradient over the tick
+    /// (relative to the object's mean, so a body whose Gaussians all moved by d still
+    /// accelerates at gain x d): its edges, which see where it is, count more than its
+    /// uniform inside, whose steps are image noise. false: every Gaussian counts alike.
+    pub weight_by_gradient: bool,
     /// A rope particle's visual inertia in multiples of its mass: a rope covers few pixels, so its
     /// Gaussians' displacements are noisier than a solid's (the paper gives rope particles more
     /// mass for the same reason).
@@ -166,6 +171,7 @@ impl Default for CorrectConfig {
             damping: 50.0,
             integral: 0.0,
             integral_leak: 2.0,
+            weight_by_gradient: false,
             rope_inertia: 2.0,
             min_displacement: 1e-4,
             pose_search_radius: 0.04,
@@ -528,6 +534,10 @@ impl Corrector {
             bonded[world.gaussians.parent[i] as usize] += 1;
         }
         let force_mass = force_mass(world, &bonded, c.rope_inertia);
+        let weight = match c.weight_by_gradient {
+            true => gradient_weights(world, &free, &self.adam[0].rms(3 * n)),
+            false => vec![1.0; n],
+        };
         for (k, &i) in free.iter().enumerate() {
             let mut d = Vec3::from_slice(&means[3 * k..]) - start[k];
             if !d.is_finite() || d.length() < c.min_displacement {
@@ -541,7 +551,7 @@ impl Corrector {
                 continue;
             }
             let p = world.gaussians.parent[i] as usize;
-            let f = force_mass[p] * accel / bonded[p].max(1) as f32;
+            let f = force_mass[p] * weight[k] * accel / bonded[p].max(1) as f32;
             forces[p] += f;
             let shape = world.particles.shape[p];
             stats.force[shape as usize] += f;
@@ -746,6 +756,36 @@ const AGREEMENT_SMOOTHING: f32 = 0.4;
 /// A pose whose Gaussians look like themselves in fewer than this share of their pixels is not
 /// where the images show the object (it is hidden, or not there at all): no pull.
 const POSE_MIN_SCORE: f32 = 0.5;
+
+/// Most a Gaussian counts under `CorrectConfig::weight_by_gradient`, in multiples of its object's
+/// mean: the gain on the few Gaussians of an object barely in view (the rest hidden, with no
+/// gradient) grows by at most this much.
+pub const MAX_GRADIENT_WEIGHT: f32 = 3.0;
+
+/// Per free Gaussian (`free[k]`), its RMS gradient `rms[k]` over the mean of its rigid object's
+/// seen Gaussians (those with any gradient), at most `MAX_GRADIENT_WEIGHT` (1 where the object's
+/// are all zero, and for rope Gaussians). The weights move the push among the Gaussians in view;
+/// a hidden Gaussian, whose displacement is zero, weighs what it did.
+pub fn gradient_weights(world: &World, free: &[usize], rms: &[f32]) -> Vec<f32> {
+    let shape_of = |i: usize| world.particles.shape[world.gaussians.parent[i] as usize] as usize;
+    let mut sum = vec![(0.0f32, 0usize); world.shapes.len()];
+    for (k, &i) in free.iter().enumerate().filter(|(k, _)| rms[*k] > 0.0) {
+        let s = &mut sum[shape_of(i)];
+        s.0 += rms[k];
+        s.1 += 1;
+    }
+    free.iter()
+        .enumerate()
+        .map(|(k, &i)| {
+            let s = shape_of(i);
+            let (total, count) = sum[s];
+            match world.shapes.kind[s] == ShapeKind::Rigid && total > 0.0 {
+                true => (rms[k] * count as f32 / total).min(MAX_GRADIENT_WEIGHT),
+                false => 1.0,
+            }
+        })
+        .collect()
+}
 
 /// Below this gain in score (share of Gaussians that look like themselves) a better pose found
 /// nearby is noise.
@@ -1099,6 +1139,90 @@ mod tests {
     }
 
     #[test]
+    fn gradient_weights_average_one_over_a_rigid_body_and_follow_its_rms_gradients() {
+        let mut b = WorldBuilder::new();
+        b.add_rigid(
+            "box",
+            &box_lattice(Vec3::new(0.02, 0.02, 0.01), 0.01),
+            0.005,
+            0.002,
+            Pose::IDENTITY,
+            Vec3::ONE,
+        );
+        let w = b.build();
+        let free: Vec<usize> = (0..w.gaussians.len()).collect();
+        let rms: Vec<f32> = (0..free.len()).map(|k| 1.0 + (k % 3) as f32).collect();
+        let weight = gradient_weights(&w, &free, &rms);
+        let mean = weight.iter().sum::<f32>() / weight.len() as f32;
+        assert!((mean - 1.0).abs() < 1e-5, "{mean}");
+        // rms 3 against rms 1: three times the weight.
+        assert!((weight[2] / weight[0] - 3.0).abs() < 1e-5, "{weight:?}");
+        let none = gradient_weights(&w, &free, &vec![0.0; free.len()]);
+        assert!(
+            none.iter().all(|x| *x == 1.0),
+            "no gradient anywhere: every Gaussian alike"
+        );
+    }
+
+    #[test]
+    fn a_uniform_body_is_pushed_by_the_edges_that_see_it_under_gradient_weights() {
+        // A plate of one colour seen 4 mm along x from where the model has it: only its edges
+        // see the offset. Averaged alike, its inside's noise steps dilute the push; weighted by
+        // their gradients, the edges set it, still bounded by what Adam's steps can measure.
+        let camera = Camera::look_at(96, 72, 110.0, Vec3::new(0.0, 0.0, 0.3), Vec3::ZERO);
+        let plate = |x: f32| {
+            let mut b = WorldBuilder::new();
+            let s = b.add_rigid(
+                "plate",
+                &box_lattice(Vec3::new(0.06, 0.06, 0.0), 0.01),
+                0.005,
+                0.001,
+                Pose::from_translation(Vec3::new(x, 0.0, 0.01)),
+                Vec3::new(0.9, 0.5, 0.1),
+            );
+            // Wide, opaque Gaussians: one even colour inside, as a real object's surface.
+            b.set_gaussian_look(s, 0.008, 0.99);
+            (b.build(), s)
+        };
+        let (seen, _) = plate(0.004);
+        // Sensor noise, +-0.03 per channel (a fixed pseudo-random pattern).
+        let noise = |k: usize| ((k as f32 * 12.9898).sin() * 43758.547).fract() * 0.06 - 0.03;
+        let image: Vec<Vec3> = CpuRenderer::new(RenderSettings::default())
+            .forward(
+                &GaussianCloud::from_world(&seen),
+                &camera,
+                Roi::full(&camera),
+            )
+            .colour
+            .iter()
+            .enumerate()
+            .map(|(k, c)| *c + Vec3::new(noise(3 * k), noise(3 * k + 1), noise(3 * k + 2)))
+            .collect();
+        let acceleration = |weighted: bool| {
+            let (mut w, s) = plate(0.0);
+            let config = CorrectConfig {
+                weight_by_gradient: weighted,
+                damping: 0.0,
+                ..Default::default()
+            };
+            let stats = correct_once(&mut w, config.clone(), camera, &image);
+            (stats.force[s as usize] / w.shapes.mass[s as usize], config)
+        };
+        let ((alike, _), (weighted, c)) = (acceleration(false), acceleration(true));
+        eprintln!("alike {alike} m/s^2, weighted {weighted} m/s^2");
+        let bound = c.gain * c.lr_mean * c.iterations as f32;
+        assert!(
+            alike.x > 0.0 && weighted.x > 1.5 * alike.x,
+            "{alike} vs {weighted}"
+        );
+        assert!(weighted.x < bound, "{weighted} beyond {bound}");
+        assert!(
+            weighted.y.abs() < 0.2 * weighted.x,
+            "along the offset: {weighted}"
+        );
+    }
+
+    #[test]
     fn a_body_seen_through_half_its_particles_lends_them_all_its_mass() {
         let mut b = WorldBuilder::new();
         let s = b.add_rigid(
@@ -1188,6 +1312,7 @@ mod tests {
         let c = CorrectConfig {
             integral: 2000.0,
             integral_leak: 2.0,
+            weight_by_gradient: false,
             ..CorrectConfig::default()
         };
         let dt = 1.0 / 30.0;
