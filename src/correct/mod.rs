@@ -993,6 +993,33 @@ mod tests {
             .unwrap()
     }
 
+    /// A square plate of `mass` kg (half side `half`, m) lying at `x` along the x axis, 1 cm
+    /// above the ground, its Gaussians set to `look` (scale, opacity) where given.
+    fn plate(half: f32, mass: f32, x: f32, look: Option<(f32, f32)>) -> (World, ShapeId) {
+        let mut b = WorldBuilder::new();
+        let points = box_lattice(Vec3::new(half, half, 0.0), 0.01);
+        let n = points.len() as f32;
+        let s = b.add_rigid(
+            "plate",
+            &points,
+            0.005,
+            mass / n,
+            Pose::from_translation(Vec3::new(x, 0.0, 0.01)),
+            Vec3::new(0.9, 0.5, 0.1),
+        );
+        if let Some((scale, opacity)) = look {
+            b.set_gaussian_look(s, scale, opacity);
+        }
+        (b.build(), s)
+    }
+
+    /// What `camera` sees of `world`.
+    fn image_of(world: &World, camera: &Camera) -> Vec<Vec3> {
+        CpuRenderer::new(RenderSettings::default())
+            .forward(&GaussianCloud::from_world(world), camera, Roi::full(camera))
+            .colour
+    }
+
     #[test]
     fn spreading_keeps_the_total_force_and_torque_and_loads_every_particle() {
         let mut b = WorldBuilder::new();
@@ -1043,30 +1070,9 @@ mod tests {
         // The same plate of 10 g or 50 g, seen 4 mm from where the model has it: the visual
         // force scales with the mass, so the acceleration is the same.
         let camera = Camera::look_at(96, 72, 110.0, Vec3::new(0.0, 0.0, 0.3), Vec3::ZERO);
-        let plate = |mass: f32, x: f32| {
-            let mut b = WorldBuilder::new();
-            let points = box_lattice(Vec3::new(0.025, 0.025, 0.0), 0.01);
-            let n = points.len() as f32;
-            let s = b.add_rigid(
-                "plate",
-                &points,
-                0.005,
-                mass / n,
-                Pose::from_translation(Vec3::new(x, 0.0, 0.01)),
-                Vec3::new(0.9, 0.5, 0.1),
-            );
-            (b.build(), s)
-        };
         let acceleration = |mass: f32| {
-            let (seen, _) = plate(mass, 0.004);
-            let image = CpuRenderer::new(RenderSettings::default())
-                .forward(
-                    &GaussianCloud::from_world(&seen),
-                    &camera,
-                    Roi::full(&camera),
-                )
-                .colour;
-            let (mut w, s) = plate(mass, 0.0);
+            let image = image_of(&plate(0.025, mass, 0.004, None).0, &camera);
+            let (mut w, s) = plate(0.025, mass, 0.0, None);
             let stats = correct_once(&mut w, CorrectConfig::default(), camera, &image);
             stats.force[s as usize] / w.shapes.mass[s as usize]
         };
@@ -1085,33 +1091,14 @@ mod tests {
         // images show it (a relocation): that force would throw it on past them, so the corrector
         // forgets it, and the displacement and pull history measured from the old pose.
         let camera = Camera::look_at(96, 72, 110.0, Vec3::new(0.0, 0.0, 0.3), Vec3::ZERO);
-        let plate = |x: f32| {
-            let mut b = WorldBuilder::new();
-            let s = b.add_rigid(
-                "plate",
-                &box_lattice(Vec3::new(0.025, 0.025, 0.0), 0.01),
-                0.005,
-                0.001,
-                Pose::from_translation(Vec3::new(x, 0.0, 0.01)),
-                Vec3::new(0.9, 0.5, 0.1),
-            );
-            (b.build(), s)
-        };
-        let (seen, _) = plate(0.006);
-        let image = CpuRenderer::new(RenderSettings::default())
-            .forward(
-                &GaussianCloud::from_world(&seen),
-                &camera,
-                Roi::full(&camera),
-            )
-            .colour;
+        let image = image_of(&plate(0.025, 0.036, 0.006, None).0, &camera);
         let views = [View {
             camera,
             image: &image,
         }];
         // The force (N) on the plate that the next predict step would apply after the move.
         let after_move = |forget: bool| {
-            let (mut w, s) = plate(0.0);
+            let (mut w, s) = plate(0.025, 0.036, 0.0, None);
             let config = CorrectConfig::default();
             let mut c = Corrector::new(config, RenderSettings::default()).unwrap();
             c.correct(&mut w, &views, 1.0 / 30.0).unwrap();
@@ -1140,16 +1127,7 @@ mod tests {
 
     #[test]
     fn gradient_weights_average_one_over_a_rigid_body_and_follow_its_rms_gradients() {
-        let mut b = WorldBuilder::new();
-        b.add_rigid(
-            "box",
-            &box_lattice(Vec3::new(0.02, 0.02, 0.01), 0.01),
-            0.005,
-            0.002,
-            Pose::IDENTITY,
-            Vec3::ONE,
-        );
-        let w = b.build();
+        let (w, _) = plate(0.02, 0.05, 0.0, None);
         let free: Vec<usize> = (0..w.gaussians.len()).collect();
         let rms: Vec<f32> = (0..free.len()).map(|k| 1.0 + (k % 3) as f32).collect();
         let weight = gradient_weights(&w, &free, &rms);
@@ -1167,39 +1145,20 @@ mod tests {
     #[test]
     fn a_uniform_body_is_pushed_by_the_edges_that_see_it_under_gradient_weights() {
         // A plate of one colour seen 4 mm along x from where the model has it: only its edges
-        // see the offset. Averaged alike, its inside's noise steps dilute the push; weighted by
-        // their gradients, the edges set it, still bounded by what Adam's steps can measure.
+        // see the offset. Averaged alike, its inside's noise steps dilute the push (here below
+        // what static friction 0.5 holds, 4.9 m/s^2); weighted by their gradients, the edges set
+        // it, at gain x offset.
         let camera = Camera::look_at(96, 72, 110.0, Vec3::new(0.0, 0.0, 0.3), Vec3::ZERO);
-        let plate = |x: f32| {
-            let mut b = WorldBuilder::new();
-            let s = b.add_rigid(
-                "plate",
-                &box_lattice(Vec3::new(0.06, 0.06, 0.0), 0.01),
-                0.005,
-                0.001,
-                Pose::from_translation(Vec3::new(x, 0.0, 0.01)),
-                Vec3::new(0.9, 0.5, 0.1),
-            );
-            // Wide, opaque Gaussians: one even colour inside, as a real object's surface.
-            b.set_gaussian_look(s, 0.008, 0.99);
-            (b.build(), s)
-        };
-        let (seen, _) = plate(0.004);
+        let look = Some((0.008, 0.99)); // wide, opaque: one even colour inside
         // Sensor noise, +-0.03 per channel (a fixed pseudo-random pattern).
         let noise = |k: usize| ((k as f32 * 12.9898).sin() * 43758.547).fract() * 0.06 - 0.03;
-        let image: Vec<Vec3> = CpuRenderer::new(RenderSettings::default())
-            .forward(
-                &GaussianCloud::from_world(&seen),
-                &camera,
-                Roi::full(&camera),
-            )
-            .colour
+        let image: Vec<Vec3> = image_of(&plate(0.06, 0.169, 0.004, look).0, &camera)
             .iter()
             .enumerate()
             .map(|(k, c)| *c + Vec3::new(noise(3 * k), noise(3 * k + 1), noise(3 * k + 2)))
             .collect();
         let acceleration = |weighted: bool| {
-            let (mut w, s) = plate(0.0);
+            let (mut w, s) = plate(0.06, 0.169, 0.0, look);
             let config = CorrectConfig {
                 weight_by_gradient: weighted,
                 damping: 0.0,
@@ -1210,12 +1169,13 @@ mod tests {
         };
         let ((alike, _), (weighted, c)) = (acceleration(false), acceleration(true));
         eprintln!("alike {alike} m/s^2, weighted {weighted} m/s^2");
-        let bound = c.gain * c.lr_mean * c.iterations as f32;
+        // The law the gain states: pushed at gain x offset (6 m/s^2 here).
+        let law = c.gain * 0.004;
+        assert!(alike.x > 0.0 && alike.x < 0.5 * law, "diluted: {alike}");
         assert!(
-            alike.x > 0.0 && weighted.x > 1.5 * alike.x,
-            "{alike} vs {weighted}"
+            (weighted.x / law - 1.0).abs() < 0.3,
+            "{weighted} against {law}"
         );
-        assert!(weighted.x < bound, "{weighted} beyond {bound}");
         assert!(
             weighted.y.abs() < 0.2 * weighted.x,
             "along the offset: {weighted}"
