@@ -546,10 +546,9 @@ impl Corrector {
             bonded[world.gaussians.parent[i] as usize] += 1;
         }
         let force_mass = force_mass(world, &bonded, c.rope_inertia);
-        let weight = match c.weight_by_gradient {
-            true => gradient_weights(world, &free, &self.adam[0].rms(3 * n)),
-            false => vec![1.0; n],
-        };
+        let weight = c
+            .weight_by_gradient
+            .then(|| gradient_weights(world, &free, &self.adam[0].rms(3 * n)));
         for (k, &i) in free.iter().enumerate() {
             let mut d = Vec3::from_slice(&means[3 * k..]) - start[k];
             if !d.is_finite() || d.length() < c.min_displacement {
@@ -563,7 +562,8 @@ impl Corrector {
                 continue;
             }
             let p = world.gaussians.parent[i] as usize;
-            let f = force_mass[p] * weight[k] * accel / bonded[p].max(1) as f32;
+            let w = weight.as_ref().map_or(1.0, |w| w[k]);
+            let f = force_mass[p] * w * accel / bonded[p].max(1) as f32;
             forces[p] += f;
             let shape = world.particles.shape[p];
             stats.force[shape as usize] += f;
@@ -777,7 +777,7 @@ pub const MAX_GRADIENT_WEIGHT: f32 = 3.0;
 /// Per free Gaussian (`free[k]`), its RMS gradient `rms[k]` over the mean of its rigid object's
 /// seen Gaussians (those with any gradient), at most `MAX_GRADIENT_WEIGHT` (1 where the object's
 /// are all zero, and for rope Gaussians). The weights move the push among the Gaussians in view;
-/// a hidden Gaussian, whose displacement is zero, weighs what it did.
+/// a hidden one (no gradient, so no displacement either) weighs nothing.
 pub fn gradient_weights(world: &World, free: &[usize], rms: &[f32]) -> Vec<f32> {
     let shape_of = |i: usize| world.particles.shape[world.gaussians.parent[i] as usize] as usize;
     let mut sum = vec![(0.0f32, 0usize); world.shapes.len()];
@@ -1284,7 +1284,6 @@ mod tests {
         let c = CorrectConfig {
             integral: 2000.0,
             integral_leak: 2.0,
-            weight_by_gradient: false,
             ..CorrectConfig::default()
         };
         let dt = 1.0 / 30.0;
