@@ -79,6 +79,11 @@ fn tile_count() -> u32 {
     return params.tiles.z * params.tiles.w;
 }
 
+// Whether every tile's list fits the pair buffer (the scan's last offset is their total).
+fn pairs_fit() -> bool {
+    return tile_offsets[tile_count()] <= arrayLength(&pairs);
+}
+
 // Alpha, Gaussian value and offset of a Gaussian at pixel centre p; alpha < 0 when it does not
 // contribute (beyond the cut-off ellipse or below min_alpha).
 struct Eval {

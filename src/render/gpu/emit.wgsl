@@ -1,9 +1,10 @@
 // Write each Gaussian's index into the lists of the tiles it touches (order fixed later by sort).
+// Lists that do not fit the pair buffer are not written: the host reads their total and grows it.
 
 @compute @workgroup_size(256)
 fn emit(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
-    if (i >= params.size.z) {
+    if (i >= params.size.z || !pairs_fit()) {
         return;
     }
     let r = rects[i];

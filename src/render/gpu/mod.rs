@@ -105,6 +105,8 @@ pub struct GpuRenderer {
     /// Binding index -> buffer slot (binding 0 is the uniform).
     slots: Vec<Slot>,
     frame: Option<Frame>,
+    /// Where read-backs land (`read`), grown like the storage slots.
+    staging: Slot,
 }
 
 fn storage() -> wgpu::BufferUsages {
@@ -169,6 +171,10 @@ impl GpuRenderer {
             kernels,
             slots,
             frame: None,
+            staging: Slot {
+                buffer: None,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            },
         })
     }
 
@@ -211,19 +217,33 @@ impl GpuRenderer {
         pass.dispatch_workgroups(groups.0, groups.1, 1);
     }
 
-    /// Copy `bytes` of `binding` back to the host.
-    fn read(&self, encoder: wgpu::CommandEncoder, binding: u32, bytes: u64) -> Result<Vec<u8>> {
+    /// Copy `(binding, byte offset, bytes)` ranges back to the host in one submission and one
+    /// wait: each wait is a round trip to the device, which costs more than these small copies.
+    fn read(
+        &mut self,
+        encoder: wgpu::CommandEncoder,
+        ranges: &[(u32, u64, u64)],
+    ) -> Result<Vec<Vec<u8>>> {
         let mut encoder = encoder;
-        let bytes = bytes.max(4).next_multiple_of(4);
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        encoder.copy_buffer_to_buffer(self.buffer(binding), 0, &staging, 0, bytes);
+        // Copies move whole 4-byte words: each range is padded up to one.
+        let padded: Vec<u64> = ranges
+            .iter()
+            .map(|r| r.2.max(4).next_multiple_of(4))
+            .collect();
+        let total: u64 = padded.iter().sum();
+        self.staging.ensure(&self.device, total, "readback");
+        let staging = self.staging.buffer.as_ref().expect("ensured above");
+        let mut at = 0;
+        for (&(binding, offset, _), &bytes) in ranges.iter().zip(&padded) {
+            let source = self.slots[binding as usize]
+                .buffer
+                .as_ref()
+                .expect("buffer allocated before use");
+            encoder.copy_buffer_to_buffer(source, offset, staging, at, bytes);
+            at += bytes;
+        }
         self.queue.submit(Some(encoder.finish()));
-        let slice = staging.slice(..);
+        let slice = staging.slice(..total);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
@@ -234,10 +254,21 @@ impl GpuRenderer {
         rx.recv()
             .context("GPU read-back never completed")?
             .map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
-        let data = slice
-            .get_mapped_range()
-            .map_err(|e| anyhow!("cannot map read-back: {e:?}"))?
-            .to_vec();
+        let data = {
+            let mapped = slice
+                .get_mapped_range()
+                .map_err(|e| anyhow!("cannot map read-back: {e:?}"))?;
+            let mut at = 0;
+            ranges
+                .iter()
+                .zip(&padded)
+                .map(|(r, &bytes)| {
+                    let part = mapped[at as usize..(at + r.2) as usize].to_vec();
+                    at += bytes;
+                    part
+                })
+                .collect()
+        };
         staging.unmap();
         Ok(data)
     }
@@ -316,39 +347,30 @@ impl GpuRenderer {
         }
         let mut enc = d.create_command_encoder(&Default::default());
         enc.clear_buffer(self.buffer(4), 0, None);
-        enc.clear_buffer(self.buffer(6), 0, None);
         self.dispatch(&mut enc, 0, ((n as u32).div_ceil(256), 1));
         if n_tiles > 0 {
             self.dispatch(&mut enc, 1, (1, 1));
         } else {
             enc.clear_buffer(self.buffer(5), 0, None);
         }
-        // The number of (tile, Gaussian) pairs sizes the lists: one small read-back per frame.
-        let total_bytes = {
-            let staging_src = 4 * n_tiles;
-            let all = self.read(enc, 5, 4 * (n_tiles + 1))?;
-            all[staging_src as usize..staging_src as usize + 4].to_vec()
-        };
-        let n_pairs = u32::from_le_bytes([
-            total_bytes[0],
-            total_bytes[1],
-            total_bytes[2],
-            total_bytes[3],
-        ]) as u64;
-        self.slots[7].ensure(&self.device, 4 * n_pairs, "pairs");
-        let mut enc = self.device.create_command_encoder(&Default::default());
-        self.dispatch(&mut enc, 2, ((n as u32).div_ceil(256), 1));
-        self.dispatch(&mut enc, 3, tiles);
-        self.dispatch(&mut enc, 4, tiles);
+        // The (tile, Gaussian) pair lists are written into the capacity the last frames needed,
+        // and their total comes back with the image: one wait per frame. A frame that needs more
+        // (the first, or a view that grew) is listed and rastered again into a bigger buffer.
         let pixels = roi.pixels();
-        let image = self.read(enc, 8, 16 * pixels as u64)?;
-        let image: &[[f32; 4]] = bytemuck::cast_slice(&image[..16 * pixels]);
-        let aux = self.read(
-            self.device.create_command_encoder(&Default::default()),
-            9,
-            16 * pixels as u64,
-        )?;
-        let aux: &[[f32; 4]] = bytemuck::cast_slice(&aux[..16 * pixels]);
+        let wanted = [
+            (5, 4 * n_tiles, 4),
+            (8, 0, 16 * pixels as u64),
+            (9, 0, 16 * pixels as u64),
+        ];
+        let capacity = self.pair_capacity(n);
+        let mut data = self.list_and_raster(enc, capacity, tiles, n, &wanted)?;
+        let n_pairs = u32::from_le_bytes(data[0][..4].try_into().expect("4 bytes read")) as u64;
+        if n_pairs > capacity {
+            let enc = self.device.create_command_encoder(&Default::default());
+            data = self.list_and_raster(enc, n_pairs + n_pairs / 4, tiles, n, &wanted)?;
+        }
+        let image: &[[f32; 4]] = bytemuck::cast_slice(&data[1]);
+        let aux: &[[f32; 4]] = bytemuck::cast_slice(&data[2]);
         self.frame = Some(Frame {
             roi,
             n_gaussians: n,
@@ -361,6 +383,31 @@ impl GpuRenderer {
             alpha: image.iter().map(|p| p[3]).collect(),
             depth: aux.iter().map(|p| p[0]).collect(),
         })
+    }
+
+    /// Pairs the pair buffer holds: at least what the last frames needed, and 16 per Gaussian.
+    fn pair_capacity(&mut self, n: usize) -> u64 {
+        self.slots[7].ensure(&self.device, 4 * 16 * n as u64, "pairs");
+        self.buffer(7).size() / 4
+    }
+
+    /// Grow the pair buffer to `capacity`, then emit, sort and raster the projected frame and
+    /// read `wanted` back. The kernels leave the lists alone when they do not fit; the total
+    /// read back then says how many are needed.
+    fn list_and_raster(
+        &mut self,
+        mut enc: wgpu::CommandEncoder,
+        capacity: u64,
+        tiles: (u32, u32),
+        n: usize,
+        wanted: &[(u32, u64, u64)],
+    ) -> Result<Vec<Vec<u8>>> {
+        self.slots[7].ensure(&self.device, 4 * capacity, "pairs");
+        enc.clear_buffer(self.buffer(6), 0, None);
+        self.dispatch(&mut enc, 2, ((n as u32).div_ceil(256), 1));
+        self.dispatch(&mut enc, 3, tiles);
+        self.dispatch(&mut enc, 4, tiles);
+        self.read(enc, wanted)
     }
 
     /// Gradients of a loss with respect to `cloud` given its gradients with respect to the images
@@ -407,8 +454,8 @@ impl GpuRenderer {
         enc.clear_buffer(self.buffer(11), 0, None);
         self.dispatch(&mut enc, 5, tiles);
         self.dispatch(&mut enc, 6, ((n as u32).div_ceil(256), 1));
-        let raw = self.read(enc, 12, GRAD_SIZE * n as u64)?;
-        let g: &[[f32; 16]] = bytemuck::cast_slice(&raw[..GRAD_SIZE as usize * n]);
+        let raw = self.read(enc, &[(12, 0, GRAD_SIZE * n as u64)])?;
+        let g: &[[f32; 16]] = bytemuck::cast_slice(&raw[0]);
         let mut out = CloudGrads::zeros(n);
         for (i, v) in g.iter().enumerate() {
             out.mean[i] = Vec3::new(v[0], v[1], v[2]);

@@ -20,7 +20,7 @@ fn compare_swap(start: u32, a: u32, b: u32, n: u32) {
 fn sort_tiles(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let t = wg.y * params.tiles.z + wg.x;
     if (lid == 0u) {
-        count_shared = tile_offsets[t + 1u] - tile_offsets[t];
+        count_shared = select(0u, tile_offsets[t + 1u] - tile_offsets[t], pairs_fit());
     }
     let n = workgroupUniformLoad(&count_shared);
     let start = tile_offsets[t];
