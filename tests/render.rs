@@ -559,23 +559,9 @@ fn cpu_and_wgpu_agree_on_a_20k_gaussian_three_camera_scene() {
             .iter_mut()
             .map(|r| r.forward(&cloud, cam, Roi::full(cam)).unwrap())
             .collect();
-        let colour_diff = outs[0]
-            .colour
-            .iter()
-            .zip(&outs[1].colour)
-            .map(|(a, b)| (*a - *b).abs().max_element())
-            .fold(0.0f32, f32::max);
-        let alpha_diff = outs[0]
-            .alpha
-            .iter()
-            .zip(&outs[1].alpha)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
-        eprintln!("max |colour_cpu - colour_wgpu| = {colour_diff:.2e}, alpha {alpha_diff:.2e}");
-        assert!(
-            colour_diff < 1e-3 && alpha_diff < 1e-3,
-            "images differ: colour {colour_diff}, alpha {alpha_diff}"
-        );
+        let diff = image_difference(&outs[0], &outs[1]);
+        eprintln!("max |cpu - wgpu| over colour and alpha = {diff:.2e}");
+        assert!(diff < 1e-3, "images differ by {diff}");
         // A photometric loss against a shifted copy of the image, as the correction step uses.
         let target: Vec<Vec3> = outs[0]
             .colour
