@@ -683,3 +683,24 @@ fn a_frame_listing_more_tile_pairs_than_the_frames_before_renders_as_the_cpu_ref
         );
     }
 }
+
+#[test]
+fn an_empty_window_renders_no_pixels_and_no_gradients_on_every_backend() {
+    // A tracked object that leaves a camera's view gets an empty window.
+    let mut rng = Rng(5);
+    let cloud = random_cloud(50, &mut rng, (0.3, 0.9));
+    let cam = cameras(64, 48)[0];
+    let empty = Roi {
+        x0: 20,
+        y0: 10,
+        x1: 20,
+        y1: 30,
+    };
+    for r in &mut backends(&RenderSettings::default()) {
+        let out = r.forward(&cloud, &cam, empty).unwrap();
+        assert!(out.colour.is_empty() && out.alpha.is_empty() && out.depth.is_empty());
+        let g = r.backward(&cloud, &PixelGrads::default()).unwrap();
+        assert_eq!(g.mean.len(), cloud.len());
+        assert!(g.mean.iter().all(|m| *m == Vec3::ZERO));
+    }
+}

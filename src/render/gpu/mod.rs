@@ -77,7 +77,9 @@ struct Slot {
 
 impl Slot {
     fn ensure(&mut self, device: &wgpu::Device, bytes: u64, label: &str) {
-        let bytes = bytes.max(16).next_multiple_of(16);
+        // At least one element of the largest binding type (a Gaussian's gradient, 64 bytes):
+        // an empty frame still binds every buffer.
+        let bytes = bytes.max(GRAD_SIZE).next_multiple_of(16);
         if self.buffer.as_ref().is_none_or(|b| b.size() < bytes) {
             self.buffer = Some(device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -107,6 +109,15 @@ pub struct GpuRenderer {
     frame: Option<Frame>,
     /// Where read-backs land (`read`), grown like the storage slots.
     staging: Slot,
+}
+
+/// The elements in bytes read back (copied out: a read-back's bytes need not be aligned for `T`,
+/// and an empty one never is).
+fn rows<T: Pod>(bytes: &[u8]) -> Vec<T> {
+    bytes
+        .chunks_exact(std::mem::size_of::<T>())
+        .map(bytemuck::pod_read_unaligned)
+        .collect()
 }
 
 fn storage() -> wgpu::BufferUsages {
@@ -369,8 +380,8 @@ impl GpuRenderer {
             let enc = self.device.create_command_encoder(&Default::default());
             data = self.list_and_raster(enc, n_pairs + n_pairs / 4, tiles, n, &wanted)?;
         }
-        let image: &[[f32; 4]] = bytemuck::cast_slice(&data[1]);
-        let aux: &[[f32; 4]] = bytemuck::cast_slice(&data[2]);
+        let image: Vec<[f32; 4]> = rows(&data[1]);
+        let aux: Vec<[f32; 4]> = rows(&data[2]);
         self.frame = Some(Frame {
             roi,
             n_gaussians: n,
@@ -455,7 +466,7 @@ impl GpuRenderer {
         self.dispatch(&mut enc, 5, tiles);
         self.dispatch(&mut enc, 6, ((n as u32).div_ceil(256), 1));
         let raw = self.read(enc, &[(12, 0, GRAD_SIZE * n as u64)])?;
-        let g: &[[f32; 16]] = bytemuck::cast_slice(&raw[0]);
+        let g: Vec<[f32; 16]> = rows(&raw[0]);
         let mut out = CloudGrads::zeros(n);
         for (i, v) in g.iter().enumerate() {
             out.mean[i] = Vec3::new(v[0], v[1], v[2]);
