@@ -9,6 +9,7 @@ use super::{Camera, CloudGrads, GaussianCloud, PixelGrads, RenderOutput, RenderS
 use anyhow::{Context, Result, anyhow, bail};
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec3, Vec4};
+use std::borrow::Cow;
 
 const COMMON: &str = include_str!("common.wgsl");
 
@@ -111,13 +112,18 @@ pub struct GpuRenderer {
     staging: Slot,
 }
 
-/// The elements in bytes read back (copied out: a read-back's bytes need not be aligned for `T`,
-/// and an empty one never is).
-fn rows<T: Pod>(bytes: &[u8]) -> Vec<T> {
-    bytes
-        .chunks_exact(std::mem::size_of::<T>())
-        .map(bytemuck::pod_read_unaligned)
-        .collect()
+/// The elements in bytes read back: borrowed where the bytes are aligned for `T`, else copied
+/// out one by one (an empty read-back is never aligned).
+fn rows<T: Pod>(bytes: &[u8]) -> Cow<'_, [T]> {
+    match bytemuck::try_cast_slice(bytes) {
+        Ok(rows) => Cow::Borrowed(rows),
+        Err(_) => Cow::Owned(
+            bytes
+                .chunks_exact(std::mem::size_of::<T>())
+                .map(bytemuck::pod_read_unaligned)
+                .collect(),
+        ),
+    }
 }
 
 fn storage() -> wgpu::BufferUsages {
@@ -380,8 +386,8 @@ impl GpuRenderer {
             let enc = self.device.create_command_encoder(&Default::default());
             data = self.list_and_raster(enc, n_pairs + n_pairs / 4, tiles, n, &wanted)?;
         }
-        let image: Vec<[f32; 4]> = rows(&data[1]);
-        let aux: Vec<[f32; 4]> = rows(&data[2]);
+        let image: Cow<[[f32; 4]]> = rows(&data[1]);
+        let aux: Cow<[[f32; 4]]> = rows(&data[2]);
         self.frame = Some(Frame {
             roi,
             n_gaussians: n,
@@ -466,7 +472,7 @@ impl GpuRenderer {
         self.dispatch(&mut enc, 5, tiles);
         self.dispatch(&mut enc, 6, ((n as u32).div_ceil(256), 1));
         let raw = self.read(enc, &[(12, 0, GRAD_SIZE * n as u64)])?;
-        let g: Vec<[f32; 16]> = rows(&raw[0]);
+        let g: Cow<[[f32; 16]]> = rows(&raw[0]);
         let mut out = CloudGrads::zeros(n);
         for (i, v) in g.iter().enumerate() {
             out.mean[i] = Vec3::new(v[0], v[1], v[2]);
