@@ -2,6 +2,7 @@
 //! corresponding piece of physics is missing or wrong. Run with --release (tests/run_all.sh).
 
 use glam::{Quat, Vec3};
+use pegs::correct::{CorrectConfig, FrictionMemory, Support, compensate_friction};
 use pegs::math::Pose;
 use pegs::physics::effects::{
     CenterOfMassOffset, ConstantForce, FrictionPatch, MassScale, Restitution, Spring, TableTilt,
@@ -739,6 +740,60 @@ fn tilted_table_holds_a_box_below_the_friction_angle_and_slides_it_above() {
             );
         }
     }
+}
+
+/// Velocity (m/s, along x) of a resting box after 1 s of a visual push of `push` m/s^2 along x,
+/// with the correction's friction compensation at `compensation`.
+fn pushed_velocity(config: PhysicsConfig, push: f32, compensation: f32) -> f32 {
+    let (mut w, s, _) = box_world();
+    let support = Support {
+        normal: config.ground.normal,
+        height: config.ground.height,
+        kinetic_friction: config.ground.kinetic_friction,
+        gravity: config.gravity,
+    };
+    let correct = CorrectConfig {
+        friction_compensation: compensation,
+        friction_ramp: 0.5,
+        ..CorrectConfig::default()
+    };
+    let mut solver = Solver::new(config, &w).unwrap();
+    let mut memory = FrictionMemory::default();
+    for _ in 0..30 {
+        let mut forces: Vec<Vec3> = (w.particles.inv_mass.iter())
+            .map(|&im| {
+                if im > 0.0 {
+                    Vec3::X * push / im
+                } else {
+                    Vec3::ZERO
+                }
+            })
+            .collect();
+        compensate_friction(&w, &mut forces, &mut memory, &support, &correct);
+        for (e, f) in w.particles.external_force.iter_mut().zip(&forces) {
+            *e += *f;
+        }
+        solver.step(&mut w).expect("step");
+    }
+    w.shape_velocity(s).x
+}
+
+#[test]
+fn a_push_below_static_friction_moves_a_box_as_on_ice_once_its_friction_is_compensated() {
+    let config = undamped();
+    let push = 0.4 * config.ground.static_friction * G;
+    let held = pushed_velocity(config.clone(), push, 0.0);
+    let compensated = pushed_velocity(config, push, 1.0);
+    let on_ice = pushed_velocity(frictionless(), push, 1.0);
+    assert!(held.abs() < 1e-3, "static friction holds the box: v {held}");
+    assert!(
+        (on_ice - push).abs() < 0.05 * push,
+        "on ice v = a t: {on_ice} vs {push}"
+    );
+    assert!(
+        (compensated - on_ice).abs() < 0.1 * push,
+        "compensated {compensated} vs on ice {on_ice}"
+    );
 }
 
 #[test]

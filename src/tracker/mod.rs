@@ -13,7 +13,7 @@ pub use health::{Change, TrackEvent, TrackHealth};
 pub use observer::{Observer, Tick};
 
 use crate::config::Config;
-use crate::correct::{CorrectConfig, CorrectStats, Corrector, relocate};
+use crate::correct::{CorrectConfig, CorrectStats, Corrector, Support, relocate};
 use crate::inputs::{Inputs, TickInputs};
 use crate::math::Pose;
 use crate::physics::{PhysicsConfig, Solver, Touched};
@@ -98,9 +98,17 @@ impl Tracker {
         physics: PhysicsConfig,
         correct: Option<(CorrectConfig, crate::render::RenderSettings)>,
     ) -> Result<Self> {
+        let support = physics.ground.enabled.then_some(Support {
+            normal: physics.ground.normal,
+            height: physics.ground.height,
+            kinetic_friction: physics.ground.kinetic_friction,
+            gravity: physics.gravity,
+        });
         let solver = Solver::new(physics, &scene.world)?;
         let corrector = match correct {
-            Some((c, render)) if c.enabled => Some(Corrector::new(c, render)?),
+            Some((c, render)) if c.enabled => {
+                Some(Corrector::new(c, render)?.with_support(support))
+            }
             _ => None,
         };
         Ok(Self {
