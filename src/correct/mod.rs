@@ -108,11 +108,13 @@ pub struct CorrectConfig {
     /// chromaticity is this far from every colour the tracked objects render with (brightness free
     /// within a factor 2.5: shading), is left out of the loss. 0 uses every pixel.
     pub occluder_threshold: f32,
-    /// Share of the model's own kinetic friction (`Support`) added to the visual force of a rigid
-    /// object resting on the table, along the force's tangential part, once that part reaches
-    /// `friction_ramp` (m/s^2; in proportion below it). The model's friction is a dead zone in
-    /// the loop the visual forces close: without it a gain soft enough not to ring on a slippery
-    /// table cannot break a box free on a rough one. 0: off.
+    /// Share of the model's own kinetic friction (`Support`) added to the visual force of an
+    /// object standing on the table, against its push along the table and its turn about the
+    /// table's normal as averaged over the last few ticks (`compensate_friction`), ramped in
+    /// over `friction_ramp` (m/s^2 of averaged push). The model's friction is a dead zone in the
+    /// loop the visual forces close: without it a gain soft enough not to ring on a slippery
+    /// table cannot break a box free on a rough one. The compensation is applied, not reported
+    /// in `CorrectStats::force` (what the model lacks). 0: off.
     pub friction_compensation: f32,
     pub friction_ramp: f32,
 }
@@ -339,7 +341,7 @@ pub struct Corrector {
     displacements: Vec<DisplacementState>,
     /// Each particle's pose pull across ticks (`PullState`).
     pulls: Vec<PullState>,
-    /// Each particle's push along the table, averaged over ticks (`compensate_friction`).
+    /// Each particle's push and turn along the table, averaged over ticks (`compensate_friction`).
     pushes: FrictionMemory,
     /// Each shape's silhouette agreement, averaged over ticks (`AGREEMENT_SMOOTHING`).
     agreement_avg: Vec<f32>,
