@@ -364,6 +364,22 @@ pub struct Support {
     pub gravity: Vec3,
 }
 
+impl Support {
+    /// Gravity's pull into the table (m/s^2), which the table's friction scales.
+    fn load(&self) -> f32 {
+        (-self.normal.dot(self.gravity)).max(0.0)
+    }
+}
+
+/// How much of the friction compensation an averaged push of `accel` (m/s^2 at the feet) gets:
+/// in proportion up to `friction_ramp`, whole beyond it.
+fn ramp_in(accel: f32, c: &CorrectConfig) -> f32 {
+    match c.friction_ramp > 0.0 {
+        true => (accel / c.friction_ramp).min(1.0),
+        false => 1.0,
+    }
+}
+
 /// A particle this close (m) to the table beyond its radius rests on it.
 const SUPPORT_SLACK: f32 = 0.002;
 /// Weight of a tick's push in its running average (about the last three ticks), which sets the
@@ -969,8 +985,9 @@ pub fn pose_pulls(world: &World, poses: &[Option<relocate::Found>], dead_zone: f
 }
 
 /// Add to each object pushed along the table it rests on (`Support`) the model's own kinetic
-/// friction against that push and turn (averaged over the last few ticks, `PUSH_SMOOTHING`), times `friction_compensation`, ramped in over `friction_ramp` of
-/// tangential acceleration: the visual force then moves the object as it would move it on a
+/// friction against that push and turn (averaged over the last few ticks, `PUSH_SMOOTHING`),
+/// times `friction_compensation`, ramped in over `friction_ramp` of tangential acceleration
+/// (`ramp_in`): the visual force then moves the object as it would move it on a
 /// slippery table, so one gain serves rough and slippery tables alike. A rigid object is
 /// compensated as a whole while it stands on a face (spread by mass: no torque about its centre
 /// of mass), not while it tips over an edge, where the table's friction is the pivot (pegs's
@@ -985,15 +1002,11 @@ pub fn compensate_friction(
     memory.push.resize(world.particles.len(), Vec3::ZERO);
     memory.turn.resize(world.particles.len(), 0.0);
     let p = &world.particles;
-    let load = (-s.normal.dot(s.gravity)).max(0.0);
+    let load = s.load();
     let resting = |i: usize| s.normal.dot(p.position[i]) - s.height - p.radius[i] <= SUPPORT_SLACK;
     let mass = |i: usize| match p.inv_mass[i] > 0.0 {
         true => 1.0 / p.inv_mass[i],
         false => 0.0,
-    };
-    let ramp = |accel: f32| match c.friction_ramp > 0.0 {
-        true => (accel / c.friction_ramp).min(1.0),
-        false => 1.0,
     };
     // The acceleration along the table that compensates a push `force` on `mass`, whose running
     // average along the table `smoothed` is brought up to date.
@@ -1005,7 +1018,8 @@ pub fn compensate_friction(
             *smoothed = Vec3::ZERO;
             return Vec3::ZERO;
         }
-        *smoothed / accel * (c.friction_compensation * s.kinetic_friction * load * ramp(accel))
+        *smoothed / accel
+            * (c.friction_compensation * s.kinetic_friction * load * ramp_in(accel, c))
     };
     for shape in 0..world.shapes.len() {
         let range = world.shapes.range(shape as u32);
@@ -1021,8 +1035,15 @@ pub fn compensate_friction(
                 let mut body = memory.push[range.start];
                 let extra = against(total, world.shapes.mass[shape], &mut body);
                 let mut turn = memory.turn[range.start];
-                let spin = friction_turn(world, forces, &feet, shape as ShapeId, (s, c), &mut turn);
                 let centre = world.shape_centroid(shape as u32);
+                let spin = friction_turn(
+                    world,
+                    forces,
+                    (&feet, centre),
+                    shape as ShapeId,
+                    (s, c),
+                    &mut turn,
+                );
                 for i in range {
                     memory.push[i] = body;
                     memory.turn[i] = turn;
@@ -1046,19 +1067,18 @@ pub fn compensate_friction(
 }
 
 /// The angular acceleration (rad/s^2, about the table's normal) that compensates the turn
-/// `forces` give `shape` standing on `feet`: its kinetic friction's torque, the load shared
-/// evenly among the feet, ramped in as `compensate_friction`'s push. `smoothed`, the turn's
+/// `forces` give `shape` (centre of mass `centre`) standing on `feet`: its kinetic friction's torque, the load shared
+/// evenly among the feet, ramped in as `compensate_friction`'s push (`ramp_in`). `smoothed`, the turn's
 /// running average, is brought up to date.
 fn friction_turn(
     world: &World,
     forces: &[Vec3],
-    feet: &[usize],
+    (feet, centre): (&[usize], Vec3),
     shape: ShapeId,
     (s, c): (&Support, &CorrectConfig),
     smoothed: &mut f32,
 ) -> f32 {
     let p = &world.particles;
-    let centre = world.shape_centroid(shape);
     let across = |i: usize| {
         let r = p.position[i] - centre;
         r - s.normal * s.normal.dot(r)
@@ -1077,13 +1097,9 @@ fn friction_turn(
         return 0.0;
     }
     *smoothed += PUSH_SMOOTHING * (torque / inertia - *smoothed);
-    let load = (-s.normal.dot(s.gravity)).max(0.0);
-    let friction = s.kinetic_friction * load * world.shapes.mass[shape as usize] * reach / inertia;
-    let ramp = match c.friction_ramp > 0.0 {
-        true => (smoothed.abs() * reach / c.friction_ramp).min(1.0),
-        false => 1.0,
-    };
-    smoothed.signum() * c.friction_compensation * friction * ramp
+    let friction =
+        s.kinetic_friction * s.load() * world.shapes.mass[shape as usize] * reach / inertia;
+    smoothed.signum() * c.friction_compensation * friction * ramp_in(smoothed.abs() * reach, c)
 }
 
 /// Each particle's push along the table and its body's turn about the table's normal (m/s^2,
