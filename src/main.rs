@@ -623,6 +623,16 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
                     o.before.open_loop_error_mm,
                     o.after.open_loop_error_mm
                 ),
+                Verdict::NotLocated => format!(
+                    "not located: {} cuts the held-out 1 s error by {:.0} %, but explains no miss of 0.2 s predictions beyond {:.1} mm (the tracking noise); not named",
+                    o.unlocated
+                        .as_ref()
+                        .map_or("an effect", |f| f.effect.as_str()),
+                    o.unlocated
+                        .as_ref()
+                        .map_or(0.0, |f| f.heldout_gain() * 100.0),
+                    o.locate_threshold_mm
+                ),
                 _ => "no significant missing physics in the effect library".to_string(),
             };
             println!("{}: {why}", o.object);

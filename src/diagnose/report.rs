@@ -38,6 +38,11 @@ pub enum Verdict {
     ExplainedByAnother,
     /// Enough windows to cross-validate on, and no candidate passed.
     NoMissingPhysics,
+    /// A candidate passed cross-validation (`ObjectReport::unlocated`), but explains none of the
+    /// mismatches the short open-loop predictions locate, of this object or any other: the
+    /// difference cannot be told apart from how the tracker moves the object (its jitter at
+    /// rest sets the locator's threshold), so it is named nowhere.
+    NotLocated,
     /// Too few windows of motion to cut into folds, or (with the robot's pushes among them) too
     /// few where the robot does not touch the object: nothing can be said either way.
     NotEnoughEvidence,
@@ -49,14 +54,17 @@ pub enum Verdict {
 
 impl Verdict {
     /// `judgeable`: the windows could judge a family (enough of them to cut into folds and, with
-    /// pushes among them, enough free of the robot).
-    pub fn of(named: bool, explained_by_another: bool, judgeable: bool) -> Self {
+    /// pushes among them, enough free of the robot); `unlocated`: a family passed but explains
+    /// no located mismatch.
+    pub fn of(named: bool, explained_by_another: bool, judgeable: bool, unlocated: bool) -> Self {
         if named {
             Verdict::Named
         } else if explained_by_another {
             Verdict::ExplainedByAnother
         } else if !judgeable {
             Verdict::NotEnoughEvidence
+        } else if unlocated {
+            Verdict::NotLocated
         } else {
             Verdict::NoMissingPhysics
         }
@@ -109,6 +117,9 @@ pub struct ObjectReport {
     pub regression: Selection,
     /// With `Verdict::NotConfirmed`: the effect that was named and then not confirmed.
     pub not_confirmed: Option<Fit>,
+    /// With `Verdict::NotLocated`: the fit that passed cross-validation and explains no located
+    /// mismatch.
+    pub unlocated: Option<Fit>,
     pub before: Outcome,
     pub after: Outcome,
 }
@@ -292,6 +303,22 @@ fn name_section(md: &mut String, o: &ObjectReport) {
         );
     } else if o.verdict == Verdict::NotEnoughEvidence {
         not_enough_evidence(md, o);
+    } else if o.verdict == Verdict::NotLocated
+        && let Some(f) = &o.unlocated
+    {
+        let _ = writeln!(
+            md,
+            "**Name.** Not located: {} ({} = {:.4} {}) cuts the 1 s prediction error by {:.0} % on windows it was not fitted on ({} windows in {} folds), but explains none of the misses of 0.2 s open-loop predictions beyond {:.1} mm (four times the tracking noise, at least {:.0} mm): it cannot be placed in time or on the table apart from how the tracker moves the object, so it is not added to the model. What would settle it: a track that holds still where the object rests (its jitter there sets the threshold), or a recording in which the effect shows within 0.2 s.\n",
+            f.effect,
+            f.parameter,
+            f.value,
+            f.unit,
+            f.heldout_gain() * 100.0,
+            o.windows,
+            o.folds.len(),
+            o.locate_threshold_mm,
+            super::locate::MIN_ERROR * 1e3,
+        );
     } else if o.effect == "none" {
         let _ = writeln!(
             md,
@@ -498,9 +525,23 @@ mod tests {
     /// says there is not enough evidence, whatever was (not) named.
     #[test]
     fn no_missing_physics_needs_evidence() {
-        assert_eq!(Verdict::of(false, false, true), Verdict::NoMissingPhysics);
-        assert_eq!(Verdict::of(false, false, false), Verdict::NotEnoughEvidence);
-        assert_eq!(Verdict::of(true, false, true), Verdict::Named);
-        assert_eq!(Verdict::of(false, true, false), Verdict::ExplainedByAnother);
+        assert_eq!(
+            Verdict::of(false, false, true, false),
+            Verdict::NoMissingPhysics
+        );
+        assert_eq!(
+            Verdict::of(false, false, false, false),
+            Verdict::NotEnoughEvidence
+        );
+        assert_eq!(Verdict::of(true, false, true, false), Verdict::Named);
+        assert_eq!(
+            Verdict::of(false, true, false, false),
+            Verdict::ExplainedByAnother
+        );
+        assert_eq!(Verdict::of(false, false, true, true), Verdict::NotLocated);
+        assert_eq!(
+            Verdict::of(false, false, false, true),
+            Verdict::NotEnoughEvidence
+        );
     }
 }

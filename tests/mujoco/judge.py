@@ -26,7 +26,8 @@ import scenes  # noqa: E402
 
 
 def verdicts(report: dict) -> str:
-    """Each object's verdict when nothing is named (no missing physics, or not enough evidence)."""
+    """Each object's verdict when nothing is named (no missing physics, not enough evidence, not
+    located, not confirmed)."""
     return ", ".join(f"{o['object']}: {o['verdict'].replace('_', ' ')}" for o in report.get("objects", []))
 
 

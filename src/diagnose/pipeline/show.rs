@@ -217,6 +217,7 @@ fn object_report(
             study.chosen.is_some(),
             study.explained_by.is_some(),
             super::study::judgeable(&study.folds, &study.pushed),
+            study.unlocated.is_some(),
         )
     };
     let named_on = study.refined_from.as_ref().or(study.chosen.as_ref());
@@ -264,6 +265,7 @@ fn object_report(
         candidates: study.fits,
         regression: study.regression,
         not_confirmed,
+        unlocated: study.unlocated,
         before,
         after,
     }

@@ -3,9 +3,10 @@
 //! judged by cross-validation (the windows cut into folds of consecutive time; each fold
 //! predicted with the parameter fitted on the others), and the one named: of the families that
 //! pass on both, the simplest that the windows cannot tell from the best, provided it explains
-//! located mismatches (the object's own or another's). No recording shape is assumed: a push
-//! then rest, a push that lasts the whole recording and several pushes are judged alike, and a
-//! recording with too few windows of motion gets no folds ("not enough evidence").
+//! located mismatches (the object's own or another's); one that passes and explains none is
+//! reported as "not located", named nowhere. No recording shape is assumed: a push then rest, a
+//! push that lasts the whole recording and several pushes are judged alike, and a recording with
+//! too few windows of motion gets no folds ("not enough evidence").
 //!
 //! With the robot's pushes among the windows, a family must also transfer: cut the
 //! cross-validated error on the windows where the robot does not touch the object. An effect of
@@ -65,6 +66,9 @@ pub struct Study {
     pub chosen: Option<Fit>,
     /// The fit that named it, on the first replay (when `chosen` was refined).
     pub refined_from: Option<Fit>,
+    /// With nothing chosen: the first fit (in `parsimonious` order) that passed cross-validation
+    /// but explains no located mismatch of any object (`Verdict::NotLocated`).
+    pub unlocated: Option<Fit>,
     pub regression: select::Selection,
     /// The base model's predictions from `windows`.
     pub base: Vec<Prediction>,
@@ -257,10 +261,14 @@ pub fn study(trace: &Trace, plan: &Plan, object: &Object, objects: &[Object]) ->
         }
     }
     fits.sort_by(|a, b| b.heldout_gain().total_cmp(&a.heldout_gain()));
-    let (chosen, explained) = if judgeable(&folds, &pushed) {
+    let Choice {
+        chosen,
+        explained,
+        unlocated,
+    } = if judgeable(&folds, &pushed) {
         choose(trace, plan, object, objects, &fits, &base, &pushed)?
     } else {
-        (None, Vec::new())
+        Choice::default()
     };
     let options = SelectOptions {
         train_fraction: plan.opts.train_fraction,
@@ -281,9 +289,19 @@ pub fn study(trace: &Trace, plan: &Plan, object: &Object, objects: &[Object]) ->
         fits,
         chosen,
         refined_from: None,
+        unlocated,
         regression,
         base,
     })
+}
+
+/// What `choose` found: the named fit and the located mismatches it explains, or, with none
+/// named, the first fit that passed but explains no located mismatch.
+#[derive(Default)]
+struct Choice {
+    chosen: Option<Fit>,
+    explained: Vec<Mismatch>,
+    unlocated: Option<Fit>,
 }
 
 /// The named fit and the mismatches it explains: of the fits that pass on the windows they were
@@ -298,7 +316,7 @@ fn choose(
     fits: &[Fit],
     base: &[Prediction],
     pushed: &[bool],
-) -> Result<(Option<Fit>, Vec<Mismatch>)> {
+) -> Result<Choice> {
     let min_gain = plan.opts.min_gain;
     let transfers = |f: &Fit| {
         !pushed.contains(&true) || free_gain(f, base, pushed).is_some_and(|g| g >= min_gain)
@@ -307,14 +325,14 @@ fn choose(
         .iter()
         .filter(|f| f.train_gain() >= min_gain && f.heldout_gain() >= min_gain && transfers(f))
         .collect();
-    let mut explained = Vec::new();
+    let mut unlocated = None;
     for f in parsimonious(passing) {
         let Some(effect) = f.effect_term.clone() else {
             continue;
         };
         let mut physics = trace.physics.clone();
         physics.effects.push(effect);
-        explained = locate::explained(
+        let explained = locate::explained(
             trace,
             &object.located,
             &physics,
@@ -335,10 +353,18 @@ fn choose(
             Ok(false)
         };
         if !explained.is_empty() || explains_another()? {
-            return Ok((Some(f.clone()), explained));
+            return Ok(Choice {
+                chosen: Some(f.clone()),
+                explained,
+                unlocated: None,
+            });
         }
+        unlocated.get_or_insert_with(|| f.clone());
     }
-    Ok((None, explained))
+    Ok(Choice {
+        unlocated,
+        ..Default::default()
+    })
 }
 
 /// Masses show only as ratios between objects that collide: a box struck by one heavier than
@@ -551,6 +577,70 @@ mod tests {
         let g = free_gain(&f, &base, &pushed).unwrap_or(f64::NAN);
         assert!((g - 0.75).abs() < 1e-6, "{g}");
         assert!(free_gain(&f, &base, &[true; 4]).is_none());
+    }
+
+    /// A box struck once on a slippery table tilted by a degree (too little to start it
+    /// sliding), which its model lacks; its track jitters by up to `jitter` (m) a tick, and its
+    /// mismatches are located from 0.1 s on (the strike is no prediction's to make). With a
+    /// fit of the tilt that passed cross-validation: what `choose` makes of it.
+    fn choose_a_tilt_on_a_track_jittering_by(jitter: f32) -> Choice {
+        use crate::math::Pose;
+        use crate::world::{WorldBuilder, box_lattice};
+        use glam::Vec3;
+        let mut b = WorldBuilder::new();
+        let shape = b.add_rigid(
+            "box",
+            &box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01),
+            0.005,
+            0.005,
+            Pose::from_translation(Vec3::new(0.0, 0.0, 0.0151)),
+            Vec3::ONE,
+        );
+        let mut physics = PhysicsConfig::default();
+        physics.ground.static_friction = 0.04;
+        physics.ground.kinetic_friction = 0.03;
+        let tilt: Effect =
+            serde_yaml_ng::from_str("{effect: table_tilt, angle: 0.0175, azimuth: 0}").unwrap();
+        let mut truth = physics.clone();
+        truth.effects.push(tilt.clone());
+        let kick = |k| (k == 0).then_some(Vec3::new(0.25, 0.05, 0.0));
+        let mut trace = Trace::simulated(b.build(), physics.clone(), truth, 120, shape, kick);
+        let range = trace.base.shapes.range(shape);
+        let noise = |k: usize| ((k as f32 * 12.9898).sin() * 43758.547).fract() * 2.0 - 1.0;
+        for (k, state) in trace.states.iter_mut().enumerate() {
+            let offset = jitter * Vec3::new(noise(2 * k), noise(2 * k + 1), 0.0);
+            state.position[range.clone()]
+                .iter_mut()
+                .for_each(|p| *p += offset);
+        }
+        let object = Object {
+            shape,
+            name: "box".into(),
+            samples: Vec::new(),
+            located: locate::locate(&trace, &physics, shape, &[], 0.1).unwrap(),
+        };
+        let plan = Plan {
+            horizon: 30,
+            t_first: 0.0,
+            opts: Default::default(),
+        };
+        let mut passed = fit("constant_force", &[0.05; 9]);
+        passed.effect_term = Some(tilt);
+        choose(&trace, &plan, &object, &[], &[passed], &[], &[]).unwrap()
+    }
+
+    #[test]
+    fn an_effect_that_passes_but_explains_no_located_mismatch_is_not_located_not_named() {
+        let steady = choose_a_tilt_on_a_track_jittering_by(0.0);
+        assert!(steady.chosen.is_some() && !steady.explained.is_empty());
+        assert!(steady.unlocated.is_none());
+        // Tracking jitter of 1.5 mm hides the tilt's 0.2 s misses: the same fit is not named.
+        let jittery = choose_a_tilt_on_a_track_jittering_by(0.0015);
+        assert!(jittery.chosen.is_none() && jittery.explained.is_empty());
+        assert_eq!(
+            jittery.unlocated.map(|f| f.effect),
+            Some("constant_force".to_string())
+        );
     }
 
     #[test]
