@@ -293,14 +293,14 @@ fn window(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::math::Pose;
     use crate::world::{WorldBuilder, box_lattice};
     use glam::Vec3;
 
     /// A 6 x 4 x 2 cm box resting on the ground.
-    fn resting_box() -> (crate::world::World, crate::world::ShapeId) {
+    pub(crate) fn resting_box() -> (crate::world::World, crate::world::ShapeId) {
         let mut b = WorldBuilder::new();
         let shape = b.add_rigid(
             "box",

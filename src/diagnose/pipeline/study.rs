@@ -584,18 +584,8 @@ mod tests {
     /// mismatches are located from 0.1 s on (the strike is no prediction's to make). With a
     /// fit of the tilt that passed cross-validation: what `choose` makes of it.
     fn choose_a_tilt_on_a_track_jittering_by(jitter: f32) -> Choice {
-        use crate::math::Pose;
-        use crate::world::{WorldBuilder, box_lattice};
         use glam::Vec3;
-        let mut b = WorldBuilder::new();
-        let shape = b.add_rigid(
-            "box",
-            &box_lattice(Vec3::new(0.03, 0.02, 0.01), 0.01),
-            0.005,
-            0.005,
-            Pose::from_translation(Vec3::new(0.0, 0.0, 0.0151)),
-            Vec3::ONE,
-        );
+        let (world, shape) = locate::tests::resting_box();
         let mut physics = PhysicsConfig::default();
         physics.ground.static_friction = 0.04;
         physics.ground.kinetic_friction = 0.03;
@@ -604,7 +594,7 @@ mod tests {
         let mut truth = physics.clone();
         truth.effects.push(tilt.clone());
         let kick = |k| (k == 0).then_some(Vec3::new(0.25, 0.05, 0.0));
-        let mut trace = Trace::simulated(b.build(), physics.clone(), truth, 120, shape, kick);
+        let mut trace = Trace::simulated(world, physics.clone(), truth, 120, shape, kick);
         let range = trace.base.shapes.range(shape);
         let noise = |k: usize| ((k as f32 * 12.9898).sin() * 43758.547).fract() * 2.0 - 1.0;
         for (k, state) in trace.states.iter_mut().enumerate() {
