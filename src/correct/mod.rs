@@ -1087,9 +1087,9 @@ pub fn compensate_friction(
 }
 
 /// The angular acceleration (rad/s^2, about the table's normal) that compensates the turn
-/// `forces` give `shape` (centre of mass `centre`) standing on `feet`: its kinetic friction's torque, the load shared
-/// evenly among the feet, ramped in as `compensate_friction`'s push (`ramp_in`). `smoothed`, the turn's
-/// running average, is brought up to date.
+/// `forces` give `shape` (centre of mass `centre`) standing on `feet`: its kinetic friction's
+/// torque, the load shared evenly among the feet, ramped in as `compensate_friction`'s push
+/// (`ramp_in`). `smoothed`, the turn's running average, is brought up to date.
 fn friction_turn(
     world: &World,
     forces: &[Vec3],
