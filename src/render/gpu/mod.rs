@@ -145,7 +145,13 @@ impl GpuRenderer {
             power_preference: wgpu::PowerPreference::HighPerformance,
             ..Default::default()
         }))
-        .map_err(|e| anyhow!("no GPU adapter for the wgpu backend (install mesa-vulkan-drivers for a CPU one): {e}"))?;
+        .map_err(|e| {
+            anyhow!(
+                "no GPU adapter for the wgpu backend (install mesa-vulkan-drivers for a CPU one; \
+                 on a headless NVIDIA machine set VK_ICD_FILENAMES to a JSON file naming \
+                 libEGL_nvidia.so.0, see the README's GPU figures): {e}"
+            )
+        })?;
         let info = adapter.get_info();
         let adapter_name = format!("{} ({:?}, {:?})", info.name, info.backend, info.device_type);
         // Ask for what the adapter offers: large scenes need big storage buffers.
