@@ -244,7 +244,10 @@ impl Default for CorrectConfig {
             // compensation and weighting: rows as round 5 6.01 | 5.63 | 0.63 | 2.01 | 0.93 | 1.76
             // | 0.69 / 1.05, concealed 1.07-1.38, concealed_tilt's jitter as round 9 1.57 -> 0.73
             // (1.24), and its diagnosis names the constant force (0.064 N against 0.062, 97 %
-            // cross-validated; the locator's threshold 3.0 mm). Hold 0.5 mm, a floor of 0.3 m/s^2
+            // cross-validated; the locator's threshold 3.0 mm); the cord is named too (0.89 N/m
+            // against 0.8, 1 s error 53.8 -> 5.8 mm), the weight's offset as well (16.5 mm
+            // against 15) but its 1 s error only 14.7 -> 13.0 mm, not halved (12.7 -> 5.5 at
+            // 500 / 40): that row fails. Hold 0.5 mm, a floor of 0.3 m/s^2
             // of friction kept on every table, lost the rough one (6.01 | 4.84 | 0.85 | 2.13 |
             // 1.47 | 1.54 | 0.80 / 1.34). Gating the compensation on the push's steadiness (its
             // running average over its average size, 0.6-0.95 for none) instead: jitter 0.63-0.94
