@@ -926,7 +926,42 @@ fn friction_patch_stops_a_box_sooner_than_the_plain_table() {
 fn center_of_mass_offset_tips_a_balanced_plank_towards_the_heavy_side() {
     // A plank balanced at its middle on a static ridge: the side with the shifted centre of mass
     // goes down, and the opposite shift tips it the other way.
-    let drop = |offset_x: f32| {
+    let drop = |offset_x: f32| plank_on_a_ridge(offset_x, 0.0);
+    let right_heavy = drop(0.03);
+    let left_heavy = drop(-0.03);
+    assert!(
+        right_heavy < -0.05,
+        "mass shifted to +x: +x end should drop, height difference {right_heavy}"
+    );
+    assert!(
+        left_heavy > 0.05,
+        "mass shifted to -x: -x end should drop, height difference {left_heavy}"
+    );
+}
+
+#[test]
+fn a_plank_on_a_ridge_tips_to_the_side_its_centre_of_mass_is_on_past_a_linear_re_weighting() {
+    // The ridge 0.065 m from the middle of a 0.3 m plank, beyond the 0.048 m a linear re-weighting
+    // of the particles can move the centre of mass. A weight that puts it 2 cm beyond the ridge
+    // tips the short side down; 2 cm short of it, the long side.
+    let ridge_x = 0.065;
+    let beyond = plank_on_a_ridge(ridge_x + 0.02, ridge_x);
+    let short = plank_on_a_ridge(ridge_x - 0.02, ridge_x);
+    assert!(
+        beyond < -0.05,
+        "centre of mass beyond the ridge: the +x end should drop, height difference {beyond}"
+    );
+    assert!(
+        short > 0.05,
+        "centre of mass short of the ridge: the -x end should drop, height difference {short}"
+    );
+}
+
+/// A 0.3 m plank laid level on a static ridge across it at `ridge_x` (m from its middle), its
+/// centre of mass moved by `offset_x`; over 20 ticks, the height of its +x end less its -x end
+/// where it is largest either way.
+fn plank_on_a_ridge(offset_x: f32, ridge_x: f32) -> f32 {
+    {
         let mut b = WorldBuilder::new();
         let ridge: Vec<Vec3> = (-4..=4)
             .map(|k| Vec3::new(0.0, k as f32 * SPACING, 0.0))
@@ -935,7 +970,7 @@ fn center_of_mass_offset_tips_a_balanced_plank_towards_the_heavy_side() {
             "ridge",
             &ridge,
             R,
-            Pose::from_translation(Vec3::new(0.0, 0.0, 0.1)),
+            Pose::from_translation(Vec3::new(ridge_x, 0.0, 0.1)),
             Vec3::ONE,
         );
         let plank = b.add_rigid(
@@ -955,22 +990,19 @@ fn center_of_mass_offset_tips_a_balanced_plank_towards_the_heavy_side() {
             ..PhysicsConfig::default()
         };
         let mut solver = Solver::new(config, &w).unwrap();
-        run(&mut w, &mut solver, 20, |_| {});
-        let pose = w.shapes.pose[plank as usize];
-        // Height of the +x end minus the -x end.
-        pose.transform_point(Vec3::new(0.15, 0.0, 0.0)).z
-            - pose.transform_point(Vec3::new(-0.15, 0.0, 0.0)).z
-    };
-    let right_heavy = drop(0.03);
-    let left_heavy = drop(-0.03);
-    assert!(
-        right_heavy < -0.05,
-        "mass shifted to +x: +x end should drop, height difference {right_heavy}"
-    );
-    assert!(
-        left_heavy > 0.05,
-        "mass shifted to -x: -x end should drop, height difference {left_heavy}"
-    );
+        // Height of the +x end minus the -x end; the largest either way over the ticks (a plank
+        // tipped steeply enough slides off its ridge and lands level).
+        let mut tipped = 0.0f32;
+        run(&mut w, &mut solver, 20, |w| {
+            let pose = w.shapes.pose[plank as usize];
+            let d = pose.transform_point(Vec3::new(0.15, 0.0, 0.0)).z
+                - pose.transform_point(Vec3::new(-0.15, 0.0, 0.0)).z;
+            if d.abs() > tipped.abs() {
+                tipped = d;
+            }
+        });
+        tipped
+    }
 }
 
 #[test]

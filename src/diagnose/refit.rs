@@ -671,8 +671,11 @@ fn bootstrap_interval(
     (estimate, low.min(estimate), high.max(estimate))
 }
 
-/// Largest centre-of-mass offsets along body x and y that keep every particle's mass positive
-/// (a linear reweighting of the particles; see `physics::effects`), with a margin.
+/// Largest centre-of-mass offsets along body x and y the fit tries: 0.8 of where a linear
+/// re-weighting of uniform particles runs out of positive mass. The re-weighting of
+/// `physics::effects` reaches about twice as far (`center_of_mass_reach`), but searched that far
+/// the concealed box's 1.5 cm weight was named 1.47 cm and its 1 s error fell only 12.0 -> 6.7 mm
+/// (1.60 cm and 12.0 -> 5.5 mm within these limits).
 pub fn com_limits(trace: &Trace, shape: ShapeId) -> [f32; 2] {
     let w = &trace.base;
     let rest: Vec<Vec3> = w.shapes.range(shape).map(|i| w.particles.rest[i]).collect();

@@ -22,7 +22,7 @@ mod table_tilt;
 mod viscous_drag;
 
 pub use angular_damping::AngularDamping;
-pub use center_of_mass::CenterOfMassOffset;
+pub use center_of_mass::{CenterOfMassOffset, MAX_WEIGHT_RATIO, center_of_mass_reach};
 pub use constant_force::ConstantForce;
 pub use family::{FAMILIES, Family, Feature, FitSetting, Refinement, ReportValue, family};
 pub use friction_patch::FrictionPatch;
