@@ -6,7 +6,7 @@
 use super::{Family, Feature, FitSetting, ReportValue, Term, vec3_parameters, vec3_slot};
 use crate::physics::Effect;
 use crate::world::{ShapeId, World};
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use glam::{DMat3, DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 
@@ -36,7 +36,17 @@ impl Term for CenterOfMassOffset {
         shapes: &[ShapeId],
         inv_mass: &mut [f32],
     ) -> Result<()> {
-        shift_center_of_mass(world, shapes[0], self.offset, inv_mass)
+        let s = shapes[0];
+        shift_center_of_mass(world, s, self.offset, inv_mass).with_context(|| {
+            let along = self.offset.normalize_or_zero();
+            format!(
+                "object '{}' can hold its centre of mass at most {:.3} m from its own along \
+                 {along:.2}: set center_of_mass_offset's offset (body frame, m) within that, or \
+                 check its frame and units",
+                world.shapes.name[s as usize],
+                center_of_mass_reach(world, s, along)
+            )
+        })
     }
 }
 
@@ -320,7 +330,12 @@ mod tests {
                 offset: Vec3::new(x, 0.0, 0.0),
             };
             let far = EffectModel::bind(&[far.into()], &w).unwrap();
-            assert!(far.effective_inv_mass(&w).is_err(), "offset {x} accepted");
+            let Err(e) = far.effective_inv_mass(&w) else {
+                panic!("offset {x} accepted");
+            };
+            // The refusal says how far the weight can go.
+            let said = format!("{e:#}");
+            assert!(said.contains(&format!("{reach:.3} m")), "{said}");
         }
     }
 
