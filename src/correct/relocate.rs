@@ -143,20 +143,15 @@ fn cell_of(p: Vec3) -> (i32, i32) {
 impl Probe {
     fn of(world: &World, shape: ShapeId, occluder_threshold: f32) -> Self {
         let g = &world.gaussians;
-        let (body, colour): (Vec<Vec3>, Vec<Vec3>) = world
-            .gaussians_of(shape)
-            .into_iter()
-            .map(|i| {
+        let mine = world.gaussians_of(shape);
+        let (body, colour): (Vec<Vec3>, Vec<Vec3>) = (mine.iter())
+            .map(|&i| {
                 // A rigid particle's frame turns with its shape: body = rest + local offset.
                 let p = g.parent[i] as usize;
                 (world.particles.rest[p] + g.local_mean[i], g.colour[i])
             })
             .unzip();
-        let size = world
-            .gaussians_of(shape)
-            .into_iter()
-            .map(|i| g.scale[i].max_element())
-            .collect();
+        let size = mine.iter().map(|&i| g.scale[i].max_element()).collect();
         let occluders = (occluder_threshold > 0.0).then(|| {
             let colours: &Vec<Vec3> = &colour;
             (
@@ -223,17 +218,10 @@ impl Probe {
                 continue;
             }
             let r = (size * camera.fx / z).max(0.5);
-            let (u0, u1) = ((u - r).floor() as i64, (u + r).ceil() as i64);
-            let (v0, v1) = ((v - r).floor() as i64, (v + r).ceil() as i64);
-            for y in v0.max(0)..v1.min(h) {
-                for x in u0.max(0)..u1.min(w) {
-                    let (du, dv) = (x as f32 + 0.5 - u, y as f32 + 0.5 - v);
-                    if du * du + dv * dv <= r * r {
-                        let k = (y * w + x) as usize;
-                        nearest[k] = nearest[k].min(*z);
-                    }
-                }
-            }
+            let everywhere = (f32::NEG_INFINITY, f32::INFINITY);
+            for_each_pixel_in_disc(camera, (*u, *v, r), everywhere, everywhere, |k| {
+                nearest[k] = nearest[k].min(*z);
+            });
         }
         projected
             .iter()
@@ -548,8 +536,7 @@ impl Others {
     /// box's best pose away from the rod (pegs's two_boxes: box2 found 8 mm into the box that
     /// struck it while the truth was 8 mm the other way).
     fn covering(&self, shape: ShapeId, near: Vec3, reach: f32, camera: &Camera) -> Vec<bool> {
-        let (w, h) = (camera.width as i64, camera.height as i64);
-        let mut covered = vec![false; (w * h) as usize];
+        let mut covered = vec![false; (camera.width * camera.height) as usize];
         let (cu, cv, cz) = camera.project(near);
         if cz <= 0.0 {
             return covered;
@@ -565,21 +552,35 @@ impl Others {
                 continue;
             }
             let r = (size * camera.fx / z).max(0.5);
-            let (x0, x1) = ((u - r).max(cu - half), (u + r).min(cu + half));
-            let (y0, y1) = ((v - r).max(cv - half), (v + r).min(cv + half));
-            if x0 > x1 || y0 > y1 {
-                continue;
-            }
-            for y in (y0.floor() as i64).max(0)..(y1.ceil() as i64).min(h) {
-                for x in (x0.floor() as i64).max(0)..(x1.ceil() as i64).min(w) {
-                    let (du, dv) = (x as f32 + 0.5 - u, y as f32 + 0.5 - v);
-                    if du * du + dv * dv <= r * r {
-                        covered[(y * w + x) as usize] = true;
-                    }
-                }
-            }
+            let window = ((cu - half, cu + half), (cv - half, cv + half));
+            for_each_pixel_in_disc(camera, (u, v, r), window.0, window.1, |k| covered[k] = true);
         }
         covered
+    }
+}
+
+/// Calls `f` with the index (row-major) of each pixel of `camera` whose centre lies in the disc
+/// `(u, v, radius)` (pixels) and whose column and row fall in the windows `us` and `vs`.
+fn for_each_pixel_in_disc(
+    camera: &Camera,
+    (u, v, r): (f32, f32, f32),
+    us: (f32, f32),
+    vs: (f32, f32),
+    mut f: impl FnMut(usize),
+) {
+    let (w, h) = (camera.width as i64, camera.height as i64);
+    let (x0, x1) = ((u - r).max(us.0), (u + r).min(us.1));
+    let (y0, y1) = ((v - r).max(vs.0), (v + r).min(vs.1));
+    if x0 > x1 || y0 > y1 {
+        return;
+    }
+    for y in (y0.floor() as i64).max(0)..(y1.ceil() as i64).min(h) {
+        for x in (x0.floor() as i64).max(0)..(x1.ceil() as i64).min(w) {
+            let (du, dv) = (x as f32 + 0.5 - u, y as f32 + 0.5 - v);
+            if du * du + dv * dv <= r * r {
+                f((y * w + x) as usize);
+            }
+        }
     }
 }
 
