@@ -85,6 +85,10 @@ pub struct CorrectConfig {
     /// longer overlaps the observed one; this offset does both. 0 turns it off.
     pub pose_search_radius: f32,
     pub pose_gain: f32,
+    /// Soft (10, not 30): the offset is measured once a tick on a grid of a third of a
+    /// centimetre, so its change per second jumps by a grid step at a time, and with the pull held
+    /// through searches without a verdict (`PULL_HOLD_TICKS`) a rate term of 30 kicked MuJoCo's
+    /// sticky_501 bar 12 deg one way and 18 the other every tick.
     pub pose_damping: f32,
     pub pose_integral: f32,
     /// Offsets (m, at the object's furthest particle) up to this are left to the Gaussians.
@@ -283,7 +287,7 @@ impl Default for CorrectConfig {
             // whole offset measured once a tick and a tick late takes a softer loop than
             // Adam's bounded steps.
             pose_gain: 300.0,
-            pose_damping: 30.0,
+            pose_damping: 10.0,
             pose_integral: 1500.0,
             // MuJoCo model-error recordings 400-402 (24 objects), mean mm / under 5 mm / p95 of
             // 10 mm or more, and pegs's rows (resting box, pushed T-block, two boxes, hidden box,
@@ -761,12 +765,14 @@ impl Corrector {
             lap(&mut stats, "pose_search", &mut clock);
             let mut pulls = pose_pulls(world, &poses, c.pose_dead_zone);
             for (d, shape) in pulls.iter_mut().zip(&world.particles.shape) {
-                *d *= pull_share(self.agreement_avg[*shape as usize], &c);
+                if let Some(d) = d {
+                    *d *= pull_share(self.agreement_avg[*shape as usize], &c);
+                }
             }
             self.pulls.resize(pulls.len(), PullState::default());
             for (i, (d, state)) in pulls.iter().zip(&mut self.pulls).enumerate() {
                 let accel = state.acceleration(*d, &c, dt);
-                if *d == Vec3::ZERO || world.particles.inv_mass[i] <= 0.0 {
+                if accel == Vec3::ZERO || world.particles.inv_mass[i] <= 0.0 {
                     continue;
                 }
                 let f = accel / world.particles.inv_mass[i];
@@ -1020,17 +1026,38 @@ impl DisplacementState {
 pub struct PullState {
     previous: Vec3,
     integral: Vec3,
+    /// Ticks in a row the search has had no verdict (`None`) while the pull is held.
+    unsure: u32,
 }
+
+/// Ticks a pull is held, without force and with its integral kept, through searches that found
+/// nothing convincing, before it ends. The best pose's margin over the model's flickers around
+/// `POSE_MARGIN` at rest: ending the pull at each flicker threw its integral away every few
+/// ticks, and static friction held what the pull alone could not move (MuJoCo's heavy5_502:
+/// a T-block 4 deg off in yaw, 10 mm, for its last 1.5 s).
+const PULL_HOLD_TICKS: u32 = 1;
 
 impl PullState {
     /// The acceleration (m/s^2) of this tick's pull `d` (m, `pose_pulls`): `pose_gain x d +
     /// pose_damping x its rate + pose_integral x its integral`, the rate and integral since the
-    /// pull started. A zero pull ends it and clears the state.
-    pub fn acceleration(&mut self, d: Vec3, c: &CorrectConfig, dt: f32) -> Vec3 {
-        if d == Vec3::ZERO {
-            *self = Self::default();
-            return Vec3::ZERO;
+    /// pull started. A zero pull (arrived within the dead zone) ends it and clears the state; no
+    /// verdict (`None`) holds it, with no force, for up to `PULL_HOLD_TICKS` ticks, then ends it.
+    pub fn acceleration(&mut self, d: Option<Vec3>, c: &CorrectConfig, dt: f32) -> Vec3 {
+        let d = match d {
+            None if *self != Self::default() && self.unsure < PULL_HOLD_TICKS => {
+                self.unsure += 1;
+                return Vec3::ZERO;
+            }
+            Some(d) if d != Vec3::ZERO => d,
+            _ => {
+                *self = Self::default();
+                return Vec3::ZERO;
+            }
+        };
+        if self.unsure > 0 {
+            self.previous = d;
         }
+        self.unsure = 0;
         // A pull that starts has no rate yet. Taking its whole offset as its first change kicked
         // the object (`pose_damping / dt`, three times the gain at 30 Hz) at every start, and a
         // pull starts again each time the offset leaves the dead zone: with every object
@@ -1040,6 +1067,9 @@ impl PullState {
         }
         let rate = (d - self.previous) / dt;
         self.previous = d;
+        if d.dot(self.integral) < 0.0 {
+            self.integral = Vec3::ZERO;
+        }
         self.integral += d * dt;
         c.pose_gain * d + c.pose_damping * rate + c.pose_integral * self.integral
     }
@@ -1056,10 +1086,15 @@ pub fn pull_share(agreement: f32, c: &CorrectConfig) -> f32 {
 }
 
 /// Per particle: how far the object's best local pose (`Corrector::local_poses`) would move it,
-/// less the dead zone (scaled so that the furthest particle's move shrinks by `dead_zone`); zero
-/// where the pose found is not `convincing`.
-pub fn pose_pulls(world: &World, poses: &[Option<relocate::Found>], dead_zone: f32) -> Vec<Vec3> {
-    let mut pulls = vec![Vec3::ZERO; world.particles.len()];
+/// less the dead zone (scaled so that the furthest particle's move shrinks by `dead_zone`): zero
+/// where that pose is within the dead zone, `None` where the search found no `convincing` pose
+/// (or did not run).
+pub fn pose_pulls(
+    world: &World,
+    poses: &[Option<relocate::Found>],
+    dead_zone: f32,
+) -> Vec<Option<Vec3>> {
+    let mut pulls = vec![None; world.particles.len()];
     for (s, found) in poses.iter().enumerate() {
         let Some(found) = found.filter(convincing) else {
             continue;
@@ -1072,12 +1107,13 @@ pub fn pose_pulls(world: &World, poses: &[Option<relocate::Found>], dead_zone: f
             .map(|i| found.pose.transform_point(rest[i]) - here.transform_point(rest[i]))
             .collect();
         let furthest = moves.iter().map(|d| d.length()).fold(0.0, f32::max);
-        if furthest <= dead_zone {
-            continue;
-        }
-        let keep = 1.0 - dead_zone / furthest;
+        let keep = (1.0 - dead_zone / furthest).max(0.0);
         for (i, d) in range.zip(moves) {
-            pulls[i] = keep * d;
+            pulls[i] = Some(if furthest <= dead_zone {
+                Vec3::ZERO
+            } else {
+                keep * d
+            });
         }
     }
     pulls
@@ -1832,20 +1868,72 @@ mod tests {
         let mut state = PullState::default();
         let d = Vec3::new(0.02, 0.0, 0.0);
         // A pull that starts has no change yet: no kick.
-        let first = state.acceleration(d, &c, dt);
+        let first = state.acceleration(Some(d), &c, dt);
         let expected = c.pose_gain * d + c.pose_integral * d * dt;
         assert!(first.distance(expected) < 1e-4, "{first} vs {expected}");
         // Half the offset a tick later: the rate term brakes the approach.
-        let second = state.acceleration(0.5 * d, &c, dt);
+        let second = state.acceleration(Some(0.5 * d), &c, dt);
         let rate = (0.5 * d - d) / dt;
         let expected =
             c.pose_gain * 0.5 * d + c.pose_damping * rate + c.pose_integral * 1.5 * d * dt;
         assert!(second.distance(expected) < 1e-4, "{second} vs {expected}");
-        assert!(second.x < 0.0, "the damping outweighs the gain: {second}");
+        let undamped = c.pose_gain * 0.5 * d + c.pose_integral * 1.5 * d * dt;
+        assert!(
+            second.x < undamped.x,
+            "the rate term brakes: {second} vs {undamped}"
+        );
         // A zero pull ends it: the next start has no integral left.
-        assert_eq!(state.acceleration(Vec3::ZERO, &c, dt), Vec3::ZERO);
-        let again = state.acceleration(d, &c, dt);
+        assert_eq!(state.acceleration(Some(Vec3::ZERO), &c, dt), Vec3::ZERO);
+        let again = state.acceleration(Some(d), &c, dt);
         assert!(again.distance(first) < 1e-4, "{again} vs {first}");
+    }
+
+    #[test]
+    fn a_pose_pull_that_reverses_drops_the_integral_it_built_the_other_way() {
+        let c = CorrectConfig::default();
+        let dt = 1.0 / 30.0;
+        let d = Vec3::new(0.01, 0.0, 0.0);
+        let mut state = PullState::default();
+        for _ in 0..20 {
+            state.acceleration(Some(d), &c, dt);
+        }
+        // Overshot: the pose is now the other way. Kept, 20 ticks of integral would keep pushing
+        // past it.
+        let back = state.acceleration(Some(-d), &c, dt);
+        let expected =
+            c.pose_gain * -d + c.pose_damping * (-2.0 * d / dt) - c.pose_integral * d * dt;
+        assert!(back.distance(expected) < 1e-4, "{back} vs {expected}");
+        assert!(back.x < 0.0);
+    }
+
+    #[test]
+    fn a_pose_pull_keeps_its_integral_through_a_few_searches_without_a_verdict_then_ends() {
+        let c = CorrectConfig::default();
+        let dt = 1.0 / 30.0;
+        let d = Some(Vec3::new(0.01, 0.0, 0.0));
+        let mut held = PullState::default();
+        let mut steady = PullState::default();
+        for _ in 0..10 {
+            held.acceleration(d, &c, dt);
+            steady.acceleration(d, &c, dt);
+        }
+        // Searches that find nothing convincing: no force, the integral kept.
+        for _ in 0..PULL_HOLD_TICKS {
+            assert_eq!(held.acceleration(None, &c, dt), Vec3::ZERO);
+        }
+        let resumed = held.acceleration(d, &c, dt);
+        let continued = steady.acceleration(d, &c, dt);
+        assert!(
+            resumed.distance(continued) < 1e-4,
+            "{resumed} against {continued}"
+        );
+        // One tick more without a verdict ends it: it starts again from nothing.
+        for _ in 0..=PULL_HOLD_TICKS {
+            held.acceleration(None, &c, dt);
+        }
+        assert_eq!(held, PullState::default());
+        let fresh = held.acceleration(d, &c, dt);
+        assert!(fresh.length() < continued.length() / 2.0, "{fresh}");
     }
 
     #[test]

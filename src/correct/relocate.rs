@@ -22,6 +22,7 @@ use anyhow::Result;
 use glam::{Quat, Vec3};
 use std::collections::HashSet;
 use std::f32::consts::PI;
+use std::rc::Rc;
 
 /// How the search looks for an object: `default()` for a lost one, `local` around the model's.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -118,14 +119,15 @@ struct Probe {
     /// empty: every Gaussian counts.
     seen: Vec<Vec<bool>>,
     /// Per frame, the pixels (row-major) where the model has another tracked object
-    /// (`covered_by_others`); empty: none.
-    covered: Vec<Vec<bool>>,
+    /// (`covered_by_others`); empty: none. Shared by the thinned probes (a full-frame mask per
+    /// camera).
+    covered: Rc<Vec<Vec<bool>>>,
     occluders: Option<(Vec<Vec3>, f32)>,
     /// Some of the object's particles (body frame), and the table cells the other tracked objects
     /// stand on: a candidate that puts the object onto another one is no candidate (two objects
     /// of one colour would otherwise swap).
     footprint: Vec<Vec3>,
-    others: std::rc::Rc<HashSet<(i32, i32)>>,
+    others: Rc<HashSet<(i32, i32)>>,
 }
 
 /// Cell (m) of the table grid of `Probe::others`.
@@ -181,10 +183,10 @@ impl Probe {
             colour,
             size,
             seen: Vec::new(),
-            covered: Vec::new(),
+            covered: Default::default(),
             occluders,
             footprint,
-            others: std::rc::Rc::new(others),
+            others: Rc::new(others),
         }
     }
 
@@ -243,7 +245,7 @@ impl Probe {
             seen: (self.seen.iter())
                 .map(|s| s.iter().step_by(stride.max(1)).copied().collect())
                 .collect(),
-            covered: self.covered.clone(),
+            covered: Rc::clone(&self.covered),
             occluders: self.occluders.clone(),
             footprint: self.footprint.clone(),
             others: self.others.clone(),
@@ -462,9 +464,11 @@ fn search_around(
     }
     let extent = probe.body.iter().map(|b| b.length()).fold(0.0, f32::max);
     let reach = search.radius + extent + COVER_MARGIN;
-    probe.covered = (frames.iter())
-        .map(|f| others.covering(shape, reference.translation, reach, f.camera))
-        .collect();
+    probe.covered = Rc::new(
+        (frames.iter())
+            .map(|f| others.covering(shape, reference.translation, reach, f.camera))
+            .collect(),
+    );
     if search.seen_at_reference {
         probe.seen = (frames.iter())
             .map(|f| probe.seen_by(&reference, f.camera))
@@ -690,7 +694,12 @@ mod tests {
         let here = world.shapes.pose[s as usize];
         let mut probe = Probe::of(&world, s, 0.0);
         let counted = probe.score(&here, &frames).unwrap();
-        probe.covered = vec![Others::of(&world).covering(s, here.translation, 1.0, camera)];
+        probe.covered = Rc::new(vec![Others::of(&world).covering(
+            s,
+            here.translation,
+            1.0,
+            camera,
+        )]);
         let left_out = probe.score(&here, &frames).unwrap();
         assert!(counted < 0.7, "counted, the bar hides the box: {counted}");
         assert!(

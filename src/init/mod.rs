@@ -333,7 +333,8 @@ fn add_rgbd_objects(
     }
     let rigid: Vec<_> = objects.iter().filter(|o| !o.rope).collect();
     let bar = progress_bar(progress, rigid.len());
-    for object in rigid {
+    let (mut models, mut reports) = (Vec::new(), Vec::new());
+    for object in &rigid {
         bar.set_message(format!("building {} from RGB-D", object.name));
         bar.inc(1);
         let (model, r) = rgbd::object_from_rgbd(
@@ -346,6 +347,13 @@ fn add_rgbd_objects(
             settings.render,
         )
         .with_context(|| format!("object '{}'", object.name))?;
+        models.push(model);
+        reports.push(r);
+    }
+    bar.finish_and_clear();
+    let parted = rgbd::part_overlapping(&mut models, plane.0);
+    for (((object, model), mut r), parted_mm) in rigid.iter().zip(models).zip(reports).zip(parted) {
+        r.parted_mm = parted_mm;
         builder.add_rigid_model(
             &object.name,
             &model,
@@ -361,7 +369,6 @@ fn add_rgbd_objects(
         report.objects.insert(object.name.clone(), init);
         report.rgbd_objects.insert(object.name.clone(), r);
     }
-    bar.finish_and_clear();
     Ok(())
 }
 
