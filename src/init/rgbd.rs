@@ -3,7 +3,8 @@
 //! its masked depth points give an oriented bounding box standing on the ground; a lattice of
 //! particles fills the box; carving removes the cells a camera sees through (depth) or sees no
 //! object at (mask); one Gaussian per particle gets its colour from the images by Adam; Gaussians
-//! are bonded to their particles.
+//! are bonded to their particles. Objects built side by side are parted where their particles
+//! overlap (`part_overlapping`: the collision shape only, never the Gaussians).
 
 use super::table::{ColourFit, FitFrame, fit_colours};
 use crate::math::Pose;
