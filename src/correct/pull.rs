@@ -1,0 +1,228 @@
+//! The pose pull: where the local search (`relocate`) finds an object's silhouette a few
+//! millimetres or degrees from the model's pose, each of its particles is pulled towards that
+//! pose (`pose_pulls`, beyond the dead zone), in a share that grows as the silhouette agreement
+//! falls (`pull_share`), through a PID across ticks (`PullState`).
+//!
+//! This module owns turning found poses into per-particle pulls and their state across ticks;
+//! it never searches (`relocate`) and never applies forces (the rest of `correct`).
+
+use super::{CorrectConfig, relocate};
+use crate::world::World;
+use glam::Vec3;
+
+/// A pose whose Gaussians look like themselves in fewer than this share of their pixels is not
+/// where the images show the object (it is hidden, or not there at all): no pull.
+const POSE_MIN_SCORE: f32 = 0.5;
+
+/// Below this gain in score (share of Gaussians that look like themselves) a better pose found
+/// nearby is noise.
+const POSE_MARGIN: f32 = 0.03;
+
+/// Whether a better pose found nearby is worth pulling towards: it scores at least
+/// `POSE_MIN_SCORE`, and `POSE_MARGIN` more than where the model has the object.
+fn convincing(found: &relocate::Found) -> bool {
+    found.score >= POSE_MIN_SCORE && found.score >= found.score_here + POSE_MARGIN
+}
+
+/// One particle's pose pull across ticks: its pull at the previous tick and the pull integrated
+/// over the ticks it has lasted (s m).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PullState {
+    previous: Vec3,
+    integral: Vec3,
+    /// Ticks in a row the search has had no verdict (`None`) while the pull is held.
+    unsure: u32,
+}
+
+/// Ticks a pull is held, without force and with its integral kept, through searches that found
+/// nothing convincing, before it ends. The best pose's margin over the model's flickers around
+/// `POSE_MARGIN` at rest: ending the pull at each flicker threw its integral away every few
+/// ticks, and static friction held what the pull alone could not move (MuJoCo's heavy5_502:
+/// a T-block 4 deg off in yaw, 10 mm, for its last 1.5 s).
+const PULL_HOLD_TICKS: u32 = 1;
+
+impl PullState {
+    /// The acceleration (m/s^2) of this tick's pull `d` (m, `pose_pulls`): `pose_gain x d +
+    /// pose_damping x its rate + pose_integral x its integral`, the rate and integral since the
+    /// pull started. A zero pull (arrived within the dead zone) ends it and clears the state; no
+    /// verdict (`None`) holds it, with no force, for up to `PULL_HOLD_TICKS` ticks, then ends it.
+    pub fn acceleration(&mut self, d: Option<Vec3>, c: &CorrectConfig, dt: f32) -> Vec3 {
+        let d = match d {
+            None if *self != Self::default() && self.unsure < PULL_HOLD_TICKS => {
+                self.unsure += 1;
+                return Vec3::ZERO;
+            }
+            Some(d) if d != Vec3::ZERO => d,
+            _ => {
+                *self = Self::default();
+                return Vec3::ZERO;
+            }
+        };
+        if self.unsure > 0 {
+            self.previous = d;
+        }
+        self.unsure = 0;
+        // A pull that starts has no rate yet. Taking its whole offset as its first change kicked
+        // the object (`pose_damping / dt`, three times the gain at 30 Hz) at every start, and a
+        // pull starts again each time the offset leaves the dead zone: with every object
+        // searched, pegs's pushed T-block rang 10-16 mm either side of the truth.
+        if *self == Self::default() {
+            self.previous = d;
+        }
+        let rate = (d - self.previous) / dt;
+        self.previous = d;
+        if d.dot(self.integral) < 0.0 {
+            self.integral = Vec3::ZERO;
+        }
+        self.integral += d * dt;
+        c.pose_gain * d + c.pose_damping * rate + c.pose_integral * self.integral
+    }
+}
+
+/// The share (0 to 1) of its pose pull an object with silhouette agreement `agreement` gets:
+/// none at `pose_search_below`, all at `pose_pull_full_below` and under, linear between.
+pub fn pull_share(agreement: f32, c: &CorrectConfig) -> f32 {
+    let (top, full) = (c.pose_search_below, c.pose_pull_full_below);
+    match top > full {
+        true => ((top - agreement) / (top - full)).clamp(0.0, 1.0),
+        false => 1.0,
+    }
+}
+
+/// Per particle: how far the object's best local pose (`Corrector::local_poses`) would move it,
+/// less the dead zone (scaled so that the furthest particle's move shrinks by `dead_zone`): zero
+/// where that pose is within the dead zone, `None` where the search found no `convincing` pose
+/// (or did not run).
+pub fn pose_pulls(
+    world: &World,
+    poses: &[Option<relocate::Found>],
+    dead_zone: f32,
+) -> Vec<Option<Vec3>> {
+    let mut pulls = vec![None; world.particles.len()];
+    for (s, found) in poses.iter().enumerate() {
+        let Some(found) = found.filter(convincing) else {
+            continue;
+        };
+        let here = world.shapes.pose[s];
+        let range = world.shapes.range(s as u32);
+        let rest = &world.particles.rest;
+        let moves: Vec<Vec3> = range
+            .clone()
+            .map(|i| found.pose.transform_point(rest[i]) - here.transform_point(rest[i]))
+            .collect();
+        let furthest = moves.iter().map(|d| d.length()).fold(0.0, f32::max);
+        let keep = (1.0 - dead_zone / furthest).max(0.0);
+        for (i, d) in range.zip(moves) {
+            pulls[i] = Some(if furthest <= dead_zone {
+                Vec3::ZERO
+            } else {
+                keep * d
+            });
+        }
+    }
+    pulls
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pose_pull_grows_with_its_offset_its_change_and_its_integral_and_ends_at_zero() {
+        let c = CorrectConfig::default();
+        let dt = 1.0 / 30.0;
+        let mut state = PullState::default();
+        let d = Vec3::new(0.02, 0.0, 0.0);
+        // A pull that starts has no change yet: no kick.
+        let first = state.acceleration(Some(d), &c, dt);
+        let expected = c.pose_gain * d + c.pose_integral * d * dt;
+        assert!(first.distance(expected) < 1e-4, "{first} vs {expected}");
+        // Half the offset a tick later: the rate term brakes the approach.
+        let second = state.acceleration(Some(0.5 * d), &c, dt);
+        let rate = (0.5 * d - d) / dt;
+        let expected =
+            c.pose_gain * 0.5 * d + c.pose_damping * rate + c.pose_integral * 1.5 * d * dt;
+        assert!(second.distance(expected) < 1e-4, "{second} vs {expected}");
+        let undamped = c.pose_gain * 0.5 * d + c.pose_integral * 1.5 * d * dt;
+        assert!(
+            second.x < undamped.x,
+            "the rate term brakes: {second} vs {undamped}"
+        );
+        // A zero pull ends it: the next start has no integral left.
+        assert_eq!(state.acceleration(Some(Vec3::ZERO), &c, dt), Vec3::ZERO);
+        let again = state.acceleration(Some(d), &c, dt);
+        assert!(again.distance(first) < 1e-4, "{again} vs {first}");
+    }
+
+    #[test]
+    fn a_pose_pull_that_reverses_drops_the_integral_it_built_the_other_way() {
+        let c = CorrectConfig::default();
+        let dt = 1.0 / 30.0;
+        let d = Vec3::new(0.01, 0.0, 0.0);
+        let mut state = PullState::default();
+        for _ in 0..20 {
+            state.acceleration(Some(d), &c, dt);
+        }
+        // Overshot: the pose is now the other way. Kept, 20 ticks of integral would keep pushing
+        // past it.
+        let back = state.acceleration(Some(-d), &c, dt);
+        let expected =
+            c.pose_gain * -d + c.pose_damping * (-2.0 * d / dt) - c.pose_integral * d * dt;
+        assert!(back.distance(expected) < 1e-4, "{back} vs {expected}");
+        assert!(back.x < 0.0);
+    }
+
+    #[test]
+    fn a_pose_pull_keeps_its_integral_through_a_few_searches_without_a_verdict_then_ends() {
+        let c = CorrectConfig::default();
+        let dt = 1.0 / 30.0;
+        let d = Some(Vec3::new(0.01, 0.0, 0.0));
+        let mut held = PullState::default();
+        let mut steady = PullState::default();
+        for _ in 0..10 {
+            held.acceleration(d, &c, dt);
+            steady.acceleration(d, &c, dt);
+        }
+        // Searches that find nothing convincing: no force, the integral kept.
+        for _ in 0..PULL_HOLD_TICKS {
+            assert_eq!(held.acceleration(None, &c, dt), Vec3::ZERO);
+        }
+        let resumed = held.acceleration(d, &c, dt);
+        let continued = steady.acceleration(d, &c, dt);
+        assert!(
+            resumed.distance(continued) < 1e-4,
+            "{resumed} against {continued}"
+        );
+        // One tick more without a verdict ends it: it starts again from nothing.
+        for _ in 0..=PULL_HOLD_TICKS {
+            held.acceleration(None, &c, dt);
+        }
+        assert_eq!(held, PullState::default());
+        let fresh = held.acceleration(d, &c, dt);
+        assert!(fresh.length() < continued.length() / 2.0, "{fresh}");
+    }
+
+    #[test]
+    fn a_pose_pull_grows_as_the_agreement_falls_from_where_the_search_starts_to_where_it_pulls_in_full()
+     {
+        let c = CorrectConfig {
+            pose_search_below: 1.0,
+            pose_pull_full_below: 0.9,
+            ..CorrectConfig::default()
+        };
+        for (agreement, share) in [(1.0, 0.0), (0.99, 0.1), (0.95, 0.5), (0.9, 1.0), (0.5, 1.0)] {
+            let got = pull_share(agreement, &c);
+            assert!(
+                (got - share).abs() < 1e-5,
+                "{agreement}: {got} against {share}"
+            );
+        }
+        // Where the pull is full from the search's start on, it is a step.
+        let step = CorrectConfig {
+            pose_search_below: 0.9,
+            pose_pull_full_below: 0.95,
+            ..CorrectConfig::default()
+        };
+        assert_eq!(pull_share(0.89, &step), 1.0);
+    }
+}
