@@ -75,10 +75,7 @@ pub fn compensate_friction(
     let p = &world.particles;
     let load = s.load();
     let resting = |i: usize| s.normal.dot(p.position[i]) - s.height - p.radius[i] <= SUPPORT_SLACK;
-    let mass = |i: usize| match p.inv_mass[i] > 0.0 {
-        true => 1.0 / p.inv_mass[i],
-        false => 0.0,
-    };
+    let mass = |i: usize| p.movable_mass(i);
     // The acceleration along the table that compensates a push `force` on `mass`, whose running
     // average along the table `smoothed` is brought up to date.
     let against = |force: Vec3, mass: f32, smoothed: &mut Vec3| {

@@ -883,13 +883,7 @@ pub fn palette(colours: impl Iterator<Item = Vec3>, min_share: f32) -> Vec<Vec3>
 /// many of them lie inside, unseen.
 pub fn force_mass(world: &World, bonded: &[u32], rope_inertia: f32) -> Vec<f32> {
     let p = &world.particles;
-    let mass = |i: usize| {
-        if p.inv_mass[i] > 0.0 {
-            1.0 / p.inv_mass[i]
-        } else {
-            0.0
-        }
-    };
+    let mass = |i: usize| p.movable_mass(i);
     let mut scale: Vec<f32> = (0..p.len()).map(mass).collect();
     for s in 0..world.shapes.len() {
         let range = world.shapes.range(s as u32);

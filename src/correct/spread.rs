@@ -35,14 +35,7 @@ pub fn spread_over_rigid_bodies(world: &World, forces: &mut [Vec3]) {
         // torque exactly (sum m_i r_i x (alpha x r_i) = I alpha).
         let mut inertia = Mat3::ZERO;
         for i in range.clone() {
-            let (m, r) = (
-                if p.inv_mass[i] > 0.0 {
-                    1.0 / p.inv_mass[i]
-                } else {
-                    0.0
-                },
-                p.position[i] - centre,
-            );
+            let (m, r) = (p.movable_mass(i), p.position[i] - centre);
             inertia += (Mat3::from_diagonal(Vec3::splat(r.length_squared()))
                 - Mat3::from_cols(r * r.x, r * r.y, r * r.z))
                 * m;
@@ -53,12 +46,7 @@ pub fn spread_over_rigid_bodies(world: &World, forces: &mut [Vec3]) {
             Vec3::ZERO
         };
         for i in range {
-            let m = if p.inv_mass[i] > 0.0 {
-                1.0 / p.inv_mass[i]
-            } else {
-                0.0
-            };
-            forces[i] = m * (total / mass + alpha.cross(p.position[i] - centre));
+            forces[i] = p.movable_mass(i) * (total / mass + alpha.cross(p.position[i] - centre));
         }
     }
 }

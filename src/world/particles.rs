@@ -65,6 +65,16 @@ impl Particles {
         self.position.len() - 1
     }
 
+    /// The mass (kg) a force on particle `i` acts through: 0 for a fixed particle (no force
+    /// moves it), where `mass` is infinite.
+    pub fn movable_mass(&self, i: usize) -> f32 {
+        if self.inv_mass[i] > 0.0 {
+            1.0 / self.inv_mass[i]
+        } else {
+            0.0
+        }
+    }
+
     pub fn mass(&self, i: usize) -> f32 {
         if self.inv_mass[i] > 0.0 {
             1.0 / self.inv_mass[i]
