@@ -9,6 +9,11 @@
 //! testing every pair cost ten evaluations per contribution. Each pixel still meets its
 //! contributors in the same order with the same arithmetic, so the images and gradients are
 //! those of a pixel-by-pixel walk, bit for bit.
+//!
+//! The forward pass keeps every contribution it composited (`Contribution`: the pixel, the
+//! Gaussian, its alpha and value there), row by row, and the backward pass walks those back to
+//! front instead of evaluating each Gaussian again: the same values, so the same gradients, with
+//! no exponential and no chord per contribution.
 
 // Comparisons are written `!(x <= limit)` on purpose: NaN must fail them.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -52,12 +57,45 @@ struct Frame {
     /// The projected Gaussians in `order`, contiguous per tile so both passes read them in
     /// sequence.
     sorted: Vec<Projected>,
-    chords: Vec<Chords>,
     ranges: Vec<(u32, u32)>,
-    /// Per window pixel: transmittance after compositing, and the exclusive end of the entries of
-    /// its tile list that were processed.
+    /// Per window pixel: transmittance after compositing.
     final_t: Vec<f32>,
-    last: Vec<u32>,
+    /// Per tile row: the contributions composited there.
+    bands: Vec<BandContributions>,
+}
+
+/// One Gaussian's share of one pixel, as the forward pass composited it.
+#[derive(Clone, Copy)]
+struct Contribution {
+    /// Entry of the tile's list (its place in depth order).
+    k: u32,
+    /// The pixel's column within its tile's row.
+    column: u32,
+    alpha: f32,
+    /// The Gaussian's value `exp(-q/2)` there.
+    gauss: f32,
+}
+
+/// The contributions of one tile row, row by row and within a row tile by tile, each segment in
+/// compositing order (list entry, then column).
+#[derive(Default)]
+struct BandContributions {
+    contributions: Vec<Contribution>,
+    /// Start of each (row, tile) segment in `contributions`, then the end of the last.
+    starts: Vec<u32>,
+}
+
+impl BandContributions {
+    fn clear(&mut self) {
+        self.contributions.clear();
+        self.starts.clear();
+    }
+
+    /// The segment of row `row` (counted from the band's first) and tile `tx` of `tiles` per row.
+    fn segment(&self, row: usize, tx: usize, tiles: usize) -> &[Contribution] {
+        let i = row * tiles + tx;
+        &self.contributions[self.starts[i] as usize..self.starts[i + 1] as usize]
+    }
 }
 
 pub struct CpuRenderer {
@@ -84,8 +122,6 @@ struct Pixel {
     colour: Vec3,
     depth: f32,
     t: f32,
-    /// Exclusive end of the tile-list entries processed.
-    last: u32,
     /// Compositing stopped here (the next Gaussian would take `t` under `min_transmittance`).
     done: bool,
 }
@@ -95,7 +131,6 @@ impl Pixel {
         colour: Vec3::ZERO,
         depth: 0.0,
         t: 1.0,
-        last: 0,
         done: false,
     };
 }
@@ -180,8 +215,9 @@ impl Chords {
 }
 
 /// Composite the pixels `[x0, x1)` of one tile's row at height `py`, Gaussian by Gaussian in depth
-/// order, each over its chord only (`Chords`, aligned with `list`). Every pixel meets its contributors in the same order and with
-/// the same arithmetic as a walk of the whole list for that pixel alone.
+/// order, each over its chord only (`Chords`, aligned with `list`), appending what was composited
+/// to `kept`. Every pixel meets its contributors in the same order and with the same arithmetic as
+/// a walk of the whole list for that pixel alone.
 fn composite_row(
     list: &[Projected],
     chords: &[Chords],
@@ -189,6 +225,7 @@ fn composite_row(
     py: f32,
     s: &RenderSettings,
     row: &mut Vec<Pixel>,
+    kept: &mut Vec<Contribution>,
 ) {
     row.clear();
     row.resize((x1 - x0) as usize, Pixel::CLEAR);
@@ -205,7 +242,7 @@ fn composite_row(
             if px.done {
                 continue;
             }
-            let Some((alpha, _, _)) = evaluate(g, Vec2::new(x as f32 + 0.5, py), s) else {
+            let Some((alpha, gauss, _)) = evaluate(g, Vec2::new(x as f32 + 0.5, py), s) else {
                 continue;
             };
             let next_t = px.t * (1.0 - alpha);
@@ -217,7 +254,12 @@ fn composite_row(
             px.colour += alpha * px.t * g.colour;
             px.depth += alpha * px.t * g.depth;
             px.t = next_t;
-            px.last = k as u32 + 1;
+            kept.push(Contribution {
+                k: k as u32,
+                column: x - x0,
+                alpha,
+                gauss,
+            });
         }
     }
 }
@@ -325,39 +367,51 @@ impl CpuRenderer {
         let mut alpha = vec![0.0f32; roi.pixels()];
         let mut depth = vec![0.0f32; roi.pixels()];
         let mut final_t = vec![1.0f32; roi.pixels()];
-        let mut last = vec![0u32; roi.pixels()];
         let bands = tile_row_bands(roi, tile, tile_origin.1, tiles.1);
+        // The last frame's contribution buffers are reused: they grow to a frame's size once.
+        let mut kept = self.frame.take().map(|f| f.bands).unwrap_or_default();
+        kept.resize_with(bands.len(), Default::default);
         let mut band_slices = split_rows(&mut colour, &bands, width)
             .into_iter()
             .zip(split_rows(&mut alpha, &bands, width))
             .zip(split_rows(&mut depth, &bands, width))
             .zip(split_rows(&mut final_t, &bands, width))
-            .zip(split_rows(&mut last, &bands, width))
+            .zip(kept.iter_mut())
             .enumerate()
             .collect::<Vec<_>>();
         band_slices
             .par_iter_mut()
-            .for_each(|(ty, ((((col, alp), dep), ft), la))| {
+            .for_each(|(ty, ((((col, alp), dep), ft), band))| {
                 let ty = *ty as u32;
                 let (row0, row1) = bands[ty as usize];
                 let mut row = Vec::with_capacity(tile as usize);
+                band.clear();
                 for y in row0..row1 {
                     for tx in 0..tiles.0 {
                         let columns = tile_columns(roi, tile, tile_origin.0 + tx);
                         let (a, b) = ranges[(ty * tiles.0 + tx) as usize];
                         let list = &sorted[a as usize..b as usize];
                         let chords = &chords[a as usize..b as usize];
-                        composite_row(list, chords, columns, y as f32 + 0.5, s, &mut row);
+                        band.starts.push(band.contributions.len() as u32);
+                        composite_row(
+                            list,
+                            chords,
+                            columns,
+                            y as f32 + 0.5,
+                            s,
+                            &mut row,
+                            &mut band.contributions,
+                        );
                         let i0 = (y - row0) as usize * width + (columns.0 - roi.x0) as usize;
                         for (i, px) in (i0..).zip(&row) {
                             col[i] = px.colour + px.t * s.background;
                             alp[i] = 1.0 - px.t;
                             dep[i] = px.depth;
                             ft[i] = px.t;
-                            la[i] = px.last;
                         }
                     }
                 }
+                band.starts.push(band.contributions.len() as u32);
             });
         lap(&mut self.stage_ms, "rasterise", &mut clock);
         self.frame = Some(Frame {
@@ -368,10 +422,9 @@ impl CpuRenderer {
             tiles,
             order,
             sorted,
-            chords,
             ranges,
             final_t,
-            last,
+            bands: kept,
         });
         RenderOutput {
             roi: Some(roi),
@@ -430,6 +483,7 @@ impl CpuRenderer {
             .for_each(|(ty, parts)| {
                 let (row0, row1) = bands[ty];
                 let band_start = f.ranges[ty * f.tiles.0 as usize].0 as usize;
+                let kept = &f.bands[ty];
                 let mut row = Vec::with_capacity(tile as usize);
                 for y in row0..row1 {
                     for tx in 0..f.tiles.0 {
@@ -441,7 +495,6 @@ impl CpuRenderer {
                             behind_colour: s.background,
                             behind_alpha: 0.0,
                             behind_depth: 0.0,
-                            last: f.last[i],
                             up_colour: d_image.colour[i],
                             up_alpha: d_image.alpha.get(i).copied().unwrap_or(0.0),
                             up_depth: d_image.depth.get(i).copied().unwrap_or(0.0),
@@ -450,8 +503,8 @@ impl CpuRenderer {
                         let offset = a as usize - band_start;
                         backward_row(
                             &f.sorted[a as usize..],
-                            &f.chords[a as usize..],
-                            (x0, x1),
+                            kept.segment((y - row0) as usize, tx as usize, f.tiles.0 as usize),
+                            x0,
                             y as f32 + 0.5,
                             s,
                             &mut row,
@@ -507,41 +560,38 @@ struct BackPixel {
     behind_colour: Vec3,
     behind_alpha: f32,
     behind_depth: f32,
-    /// Exclusive end of the tile-list entries the forward pass composited here.
-    last: u32,
     up_colour: Vec3,
     up_alpha: f32,
     up_depth: f32,
 }
 
-/// Walk one tile's row back to front, Gaussian by Gaussian over its chord (`Chords`), each pixel
-/// from its own last contributor. With the colour "behind" each Gaussian, normalised to the
+/// Walk one tile's row back to front through the contributions the forward pass kept there,
+/// Gaussian by Gaussian, each pixel from its own last contributor. With the colour "behind" each Gaussian, normalised to the
 /// transmittance just after it (`behind`), `d out / d alpha_i = T_i (v_i - behind_i)` for every
 /// channel: colour (v = c, background behind the last), alpha (v = 1, 0 behind) and depth. A
 /// Gaussian's partial sums its pixels in row order, as a pixel-by-pixel walk would.
 fn backward_row(
     list: &[Projected],
-    chords: &[Chords],
-    (x0, x1): (u32, u32),
+    kept: &[Contribution],
+    x0: u32,
     py: f32,
     s: &RenderSettings,
     row: &mut [BackPixel],
     parts: &mut [Partial],
 ) {
-    let end = row.iter().map(|px| px.last).max().unwrap_or(0) as usize;
-    for (k, (g, chord)) in list[..end].iter().zip(chords).enumerate().rev() {
-        let Some((c0, c1)) = chord.on_row(py, (x0, x1)) else {
-            continue;
-        };
-        let part = &mut parts[k];
-        for x in c0..c1 {
-            let px = &mut row[(x - x0) as usize];
-            if k as u32 >= px.last {
-                continue;
-            }
-            let Some((alpha, gauss, d)) = evaluate(g, Vec2::new(x as f32 + 0.5, py), s) else {
-                continue;
-            };
+    // Kept in (entry, column) order: take the entries from the last, each one's columns in order.
+    let mut end = kept.len();
+    while end > 0 {
+        let k = kept[end - 1].k;
+        let start = kept[..end]
+            .iter()
+            .rposition(|c| c.k != k)
+            .map_or(0, |i| i + 1);
+        let (g, part) = (&list[k as usize], &mut parts[k as usize]);
+        for c in &kept[start..end] {
+            let px = &mut row[c.column as usize];
+            let (alpha, gauss) = (c.alpha, c.gauss);
+            let d = Vec2::new((x0 + c.column) as f32 + 0.5, py) - g.mean;
             let t_before = px.t_after / (1.0 - alpha);
             let d_alpha = t_before
                 * ((g.colour - px.behind_colour).dot(px.up_colour)
@@ -562,6 +612,7 @@ fn backward_row(
             px.behind_depth = alpha * g.depth + (1.0 - alpha) * px.behind_depth;
             px.t_after = t_before;
         }
+        end = start;
     }
 }
 
