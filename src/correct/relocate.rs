@@ -9,7 +9,9 @@
 //! Gaussian behind the object's near side (`Probe::seen_by`), or on a pixel the model has the
 //! robot or another object on (`Others::covering`), counts neither for nor against. A coarse grid
 //! over the search radius, then a fine one around its best; candidates over another tracked
-//! object are skipped.
+//! object are skipped. The grid's rows are scored on every core, and a candidate is dropped as
+//! soon as its score, bounded from what is left to count, cannot reach a score already found:
+//! the search finds the same pose as one that scores every candidate in full, in grid order.
 //!
 //! Owns the search and its score; pulling or moving the object, and reporting a jump, are the
 //! correction's (`pose_pulls`) and the tracker's.
@@ -20,9 +22,11 @@ use crate::render::Camera;
 use crate::world::{ShapeId, ShapeKind, World};
 use anyhow::Result;
 use glam::{Quat, Vec3};
+use rayon::prelude::*;
 use std::collections::HashSet;
 use std::f32::consts::PI;
-use std::rc::Rc;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, Ordering};
 
 /// How the search looks for an object: `default()` for a lost one, `local` around the model's.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -121,13 +125,13 @@ struct Probe {
     /// Per frame, the pixels (row-major) where the model has another tracked object
     /// (`covered_by_others`); empty: none. Shared by the thinned probes (a full-frame mask per
     /// camera).
-    covered: Rc<Vec<Vec<bool>>>,
+    covered: Arc<Vec<Vec<bool>>>,
     occluders: Option<(Vec<Vec3>, f32)>,
     /// Some of the object's particles (body frame), and the table cells the other tracked objects
     /// stand on: a candidate that puts the object onto another one is no candidate (two objects
     /// of one colour would otherwise swap).
     footprint: Vec<Vec3>,
-    others: Rc<HashSet<(i32, i32)>>,
+    others: Arc<HashSet<(i32, i32)>>,
 }
 
 /// Cell (m) of the table grid of `Probe::others`.
@@ -186,7 +190,7 @@ impl Probe {
             covered: Default::default(),
             occluders,
             footprint,
-            others: Rc::new(others),
+            others: Arc::new(others),
         }
     }
 
@@ -245,7 +249,7 @@ impl Probe {
             seen: (self.seen.iter())
                 .map(|s| s.iter().step_by(stride.max(1)).copied().collect())
                 .collect(),
-            covered: Rc::clone(&self.covered),
+            covered: Arc::clone(&self.covered),
             occluders: self.occluders.clone(),
             footprint: self.footprint.clone(),
             others: self.others.clone(),
@@ -257,12 +261,39 @@ impl Probe {
     /// candidate cannot score by leaving the view); the middle camera's share. None with fewer
     /// than `agreement::MIN_VISIBLE` in view anywhere.
     fn score(&self, pose: &Pose, frames: &[Frame]) -> Option<f32> {
+        self.score_unless(pose, frames, |_| false)
+    }
+
+    /// `score`, or None as soon as `beaten(bound)` holds for a bound the score cannot exceed,
+    /// taken every `BOUND_EVERY` Gaussians from the shares counted so far (first before any:
+    /// a score is at most 1).
+    fn score_unless(
+        &self,
+        pose: &Pose,
+        frames: &[Frame],
+        beaten: impl Fn(f32) -> bool,
+    ) -> Option<f32> {
         let mut shares = Vec::with_capacity(frames.len());
         let mut seen_anywhere = 0;
         for (n, f) in frames.iter().enumerate() {
             let (mut seen, mut matched, mut behind) = (0usize, 0usize, 0usize);
             let visible = self.seen.get(n);
+            let in_view = visible.map_or(self.body.len(), |v| v.iter().filter(|s| **s).count());
             for (i, (b, c)) in self.body.iter().zip(&self.colour).enumerate() {
+                if i % BOUND_EVERY == 0 {
+                    let counted = Counted {
+                        matched,
+                        seen,
+                        behind,
+                        in_view,
+                        left: self.body.len() - i,
+                        occluders: self.occluders.is_some(),
+                    };
+                    let later = frames.len() - n - 1;
+                    if beaten(score_bound(&shares, counted.share_bound(), later)) {
+                        return None;
+                    }
+                }
                 if visible.is_some_and(|v| !v[i]) {
                     continue;
                 }
@@ -289,9 +320,7 @@ impl Probe {
             let all = match self.occluders {
                 // Left-out pixels count neither way.
                 Some(_) => seen,
-                None => {
-                    visible.map_or(self.body.len(), |v| v.iter().filter(|s| **s).count()) - behind
-                }
+                None => in_view - behind,
             };
             if all > 0 {
                 shares.push(matched as f32 / all as f32);
@@ -300,15 +329,84 @@ impl Probe {
         if seen_anywhere < super::agreement::MIN_VISIBLE || shares.is_empty() {
             return None;
         }
-        // The middle camera's share (of two, the lower): one camera an unmodelled hand covers,
-        // or whose view is out of its element, neither makes nor breaks a pose.
-        shares.sort_by(|a, b| b.total_cmp(a));
-        Some(shares[shares.len() / 2])
+        Some(middle(&mut shares))
     }
 }
 
+/// The middle camera's share (of two, the lower): one camera an unmodelled hand covers, or whose
+/// view is out of its element, neither makes nor breaks a pose.
+fn middle(shares: &mut [f32]) -> f32 {
+    shares.sort_by(|a, b| b.total_cmp(a));
+    shares[shares.len() / 2]
+}
+
+/// Gaussians scored between two looks at whether a candidate can still win.
+const BOUND_EVERY: usize = 8;
+
+/// One camera's count part way through a candidate's Gaussians.
+struct Counted {
+    matched: usize,
+    seen: usize,
+    behind: usize,
+    /// The Gaussians the camera may see (`Probe::seen`), and those not yet counted.
+    in_view: usize,
+    left: usize,
+    occluders: bool,
+}
+
+impl Counted {
+    /// The largest share the camera can end with, or None if it can still end with none. The
+    /// share `(matched + a) / (all - c)` over the ways `a + c <= left` the rest can fall is
+    /// largest at a corner: every one matched, or (without occluders) every one behind another
+    /// object. Computed as the share itself is, so the f32 bound is never under it.
+    fn share_bound(&self) -> Option<f32> {
+        let (m, l) = (self.matched, self.left);
+        if self.occluders {
+            // Left-out pixels count neither way: (matched + a) / (seen + a + unmatched).
+            return (self.seen > 0).then(|| (m + l) as f32 / (self.seen + l) as f32);
+        }
+        let all = self.in_view.checked_sub(self.behind)?;
+        let fewest = all.checked_sub(l).filter(|&a| a > 0)?;
+        Some(((m + l) as f32 / all as f32).max(m as f32 / fewest as f32))
+    }
+}
+
+/// A bound on `middle` of `done`'s shares with one camera part way (its bound, or None when it
+/// may still drop out) and `later` cameras to come: a camera to come adds most by a share of 1
+/// (one more share of 1 never lowers the middle one), one part way by its bound or by dropping out.
+/// With more cameras than `MAX_BOUNDED` the bound is 1 (no candidate is dropped).
+fn score_bound(done: &[f32], part_way: Option<f32>, later: usize) -> f32 {
+    if done.len() + 1 + later > MAX_BOUNDED {
+        return 1.0;
+    }
+    let with = |extra: Option<f32>| {
+        let mut shares = [1.0; MAX_BOUNDED];
+        let n = done.len() + extra.is_some() as usize + later;
+        shares[..done.len()].copy_from_slice(done);
+        if let Some(e) = extra {
+            shares[done.len()] = e;
+        }
+        if n == 0 {
+            1.0
+        } else {
+            middle(&mut shares[..n])
+        }
+    };
+    with(None).max(part_way.map_or(1.0, |b| with(Some(b))))
+}
+
+/// Cameras `score_bound` bounds a score over (on the stack: it runs every few Gaussians).
+const MAX_BOUNDED: usize = 8;
+
 /// Score given up for a move across the whole search radius, or a half turn.
 const MOVE_PENALTY: f32 = 0.05;
+
+/// What a candidate moved (dx, dy) and turned by `turn` from the reference gives up of its score:
+/// among poses the images cannot tell apart (a box turned by half a turn), the one nearest the
+/// reference wins.
+fn nearness(dx: f32, dy: f32, turn: f32, radius: f32) -> f32 {
+    MOVE_PENALTY * (dx.hypot(dy) / radius + turn.abs() / PI)
+}
 
 /// `reference` moved by (dx, dy) on the table and turned by `yaw` about the vertical through it.
 fn candidate(reference: &Pose, dx: f32, dy: f32, yaw: f32) -> Pose {
@@ -317,6 +415,9 @@ fn candidate(reference: &Pose, dx: f32, dy: f32, yaw: f32) -> Pose {
         (Quat::from_rotation_z(yaw) * reference.rotation).normalize(),
     )
 }
+
+/// A grid's best candidate: its score less its `nearness`, and its (dx, dy, yaw).
+type Best = Option<(f32, (f32, f32, f32))>;
 
 /// Best-scoring candidate of a grid of `n` steps of `step` either side in x and y and `m` steps
 /// of `yaw_step` either side in yaw, around (x, y, yaw).
@@ -329,32 +430,61 @@ fn best_on_grid(
     (n, step): (i32, f32),
     (m, yaw_step): (i32, f32),
     radius: f32,
-) -> Option<(f32, (f32, f32, f32))> {
-    let mut best: Option<(f32, (f32, f32, f32))> = None;
-    for i in -n..=n {
-        for j in -n..=n {
-            let (dx, dy) = (x + i as f32 * step, y + j as f32 * step);
-            if dx.hypot(dy) > radius {
-                continue;
-            }
-            for k in -m..=m {
-                let turn = yaw + k as f32 * yaw_step;
-                let pose = candidate(reference, dx, dy, turn);
-                if probe.overlaps_others(&pose) {
+) -> Best {
+    // The best value any row has found so far (f32 bits). A candidate whose score cannot reach
+    // it is no winner, whichever row found it: rows may drop candidates in any order and still
+    // return the first best of the grid.
+    let found = AtomicU32::new(f32::NEG_INFINITY.to_bits());
+    let raise = |v: f32| {
+        let _ = found.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |bits| {
+            (v > f32::from_bits(bits)).then_some(v.to_bits())
+        });
+    };
+    // The grid's centre first (the reference, or the coarse grid's best): where it scores high,
+    // the candidates further out that could not beat it even scoring 1 are never scored.
+    let centre = candidate(reference, x, y, yaw);
+    if x.hypot(y) <= radius
+        && !probe.overlaps_others(&centre)
+        && let Some(s) = probe.score(&centre, frames)
+    {
+        raise(s - nearness(x, y, yaw, radius));
+    }
+    let rows: Vec<Best> = (-n..=n)
+        .into_par_iter()
+        .map(|i| {
+            let mut best: Best = None;
+            for j in -n..=n {
+                let (dx, dy) = (x + i as f32 * step, y + j as f32 * step);
+                if dx.hypot(dy) > radius {
                     continue;
                 }
-                // Among poses the images cannot tell apart (a box turned by half a turn), the
-                // one nearest the reference: a small preference for short moves and turns.
-                let nearness = MOVE_PENALTY * (dx.hypot(dy) / radius + turn.abs() / PI);
-                if let Some(s) = probe.score(&pose, frames)
-                    && best.is_none_or(|(b, _)| s - nearness > b)
-                {
-                    best = Some((s - nearness, (dx, dy, turn)));
+                for k in -m..=m {
+                    let turn = yaw + k as f32 * yaw_step;
+                    let pose = candidate(reference, dx, dy, turn);
+                    if probe.overlaps_others(&pose) {
+                        continue;
+                    }
+                    let nearness = nearness(dx, dy, turn, radius);
+                    let floor = f32::from_bits(found.load(Ordering::Relaxed));
+                    let beaten = |bound: f32| bound - nearness < floor;
+                    if let Some(s) = probe.score_unless(&pose, frames, beaten)
+                        && best.is_none_or(|(b, _)| s - nearness > b)
+                    {
+                        best = Some((s - nearness, (dx, dy, turn)));
+                        raise(s - nearness);
+                    }
                 }
             }
+            best
+        })
+        .collect();
+    // The first best in grid order, as one pass over the rows in turn would keep it.
+    rows.into_iter().flatten().fold(None, |best, (v, at)| {
+        match best.is_none_or(|(b, _): (f32, _)| v > b) {
+            true => Some((v, at)),
+            false => best,
         }
-    }
-    best
+    })
 }
 
 impl Corrector {
@@ -464,7 +594,7 @@ fn search_around(
     }
     let extent = probe.body.iter().map(|b| b.length()).fold(0.0, f32::max);
     let reach = search.radius + extent + COVER_MARGIN;
-    probe.covered = Rc::new(
+    probe.covered = Arc::new(
         (frames.iter())
             .map(|f| others.covering(shape, reference.translation, reach, f.camera))
             .collect(),
@@ -634,7 +764,12 @@ mod tests {
     impl Seen {
         /// `world` seen by a camera 30 cm above the origin, looking down.
         fn from_above(world: &World) -> Self {
-            let camera = Camera::look_at(96, 72, 110.0, Vec3::new(0.0, 0.0, 0.3), Vec3::ZERO);
+            Self::from(world, Vec3::new(0.0, 0.0, 0.3))
+        }
+
+        /// `world` seen by a camera at `eye`, looking at the origin.
+        fn from(world: &World, eye: Vec3) -> Self {
+            let camera = Camera::look_at(96, 72, 110.0, eye, Vec3::ZERO);
             let cloud = GaussianCloud::from_world(world);
             let image = CpuRenderer::new(RenderSettings::default())
                 .forward(&cloud, &camera, Roi::full(&camera))
@@ -649,12 +784,137 @@ mod tests {
         }
 
         fn frames(&self) -> [Frame<'_>; 1] {
-            [Frame {
+            [self.frame()]
+        }
+
+        fn frame(&self) -> Frame<'_> {
+            Frame {
                 camera: &self.camera,
                 image: &self.image,
                 background: &self.background,
                 coverage: &self.coverage,
-            }]
+            }
+        }
+    }
+
+    /// The search as it reads: every candidate scored in full, in grid order, the first best kept.
+    fn every_candidate_scored(
+        probe: &Probe,
+        frames: &[Frame],
+        reference: &Pose,
+        (n, step): (i32, f32),
+        (m, yaw_step): (i32, f32),
+        radius: f32,
+    ) -> Best {
+        let mut best: Best = None;
+        for (dx, dy, turn) in grid(n, step, m, yaw_step, radius) {
+            let pose = candidate(reference, dx, dy, turn);
+            if probe.overlaps_others(&pose) {
+                continue;
+            }
+            let nearness = nearness(dx, dy, turn, radius);
+            if let Some(s) = probe.score(&pose, frames)
+                && best.is_none_or(|(b, _)| s - nearness > b)
+            {
+                best = Some((s - nearness, (dx, dy, turn)));
+            }
+        }
+        best
+    }
+
+    /// A search grid's candidate offsets around the origin, in grid order.
+    fn grid(n: i32, step: f32, m: i32, yaw_step: f32, radius: f32) -> Vec<(f32, f32, f32)> {
+        let mut out = Vec::new();
+        for i in -n..=n {
+            for j in -n..=n {
+                let (dx, dy) = (i as f32 * step, j as f32 * step);
+                if dx.hypot(dy) <= radius {
+                    out.extend((-m..=m).map(|k| (dx, dy, k as f32 * yaw_step)));
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_candidate_dropped_part_way_scores_under_the_floor_it_was_dropped_at() {
+        // Three cameras around a painted box the robot's bar partly hides, with and without
+        // what each camera sees of it, the bar's pixels and the occluder test: for every
+        // candidate of a grid and every floor, a candidate `score_unless` drops scores under it
+        // in full, and one it keeps scores exactly as `score` does.
+        let (world, s) = slab(true, true);
+        let eyes = [
+            Vec3::new(0.0, 0.0, 0.3),
+            Vec3::new(0.25, 0.05, 0.2),
+            Vec3::new(-0.1, -0.25, 0.15),
+        ];
+        let views: Vec<Seen> = eyes.iter().map(|&e| Seen::from(&world, e)).collect();
+        let frames: Vec<Frame> = views.iter().map(Seen::frame).collect();
+        let here = world.shapes.pose[s as usize];
+        let (mut dropped, mut kept) = (0, 0);
+        for (occluders, seen, covered) in
+            [(0.0, false, false), (0.0, true, true), (0.1, true, true)]
+        {
+            let mut probe = Probe::of(&world, s, occluders);
+            if covered {
+                let others = Others::of(&world);
+                let masks = frames
+                    .iter()
+                    .map(|f| others.covering(s, here.translation, 1.0, f.camera));
+                probe.covered = Arc::new(masks.collect());
+            }
+            if seen {
+                probe.seen = frames
+                    .iter()
+                    .map(|f| probe.seen_by(&here, f.camera))
+                    .collect();
+            }
+            for (dx, dy, turn) in grid(3, 0.01, 2, 0.3, 0.03) {
+                let pose = candidate(&here, dx, dy, turn);
+                let full = probe.score(&pose, &frames);
+                for floor in [0.05, 0.2, 0.4, 0.6, 0.8, 0.95] {
+                    match probe.score_unless(&pose, &frames, |bound| bound < floor) {
+                        None if full.is_some() => {
+                            dropped += 1;
+                            let full = full.unwrap();
+                            assert!(full < floor, "dropped under {floor}, scores {full}");
+                        }
+                        None => {}
+                        Some(part) => {
+                            kept += 1;
+                            assert_eq!(Some(part), full);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            dropped > 100 && kept > 100,
+            "{dropped} dropped, {kept} kept"
+        );
+    }
+
+    #[test]
+    fn the_grid_searched_on_every_core_with_candidates_dropped_finds_the_first_best_pose() {
+        // The slab seen by three cameras, searched for from references off its pose by up to
+        // 4 cm and 40 degrees: the pose (and its value) are those of scoring every candidate.
+        let (world, s) = slab(true, true);
+        let eyes = [
+            Vec3::new(0.0, 0.0, 0.3),
+            Vec3::new(0.25, 0.05, 0.2),
+            Vec3::new(-0.1, -0.25, 0.15),
+        ];
+        let views: Vec<Seen> = eyes.iter().map(|&e| Seen::from(&world, e)).collect();
+        let frames: Vec<Frame> = views.iter().map(Seen::frame).collect();
+        let here = world.shapes.pose[s as usize];
+        let probe = Probe::of(&world, s, 0.0);
+        for (x, y, yaw) in [(0.0, 0.0, 0.0), (0.02, -0.01, 0.3), (-0.04, 0.0, -0.7)] {
+            let reference = candidate(&here, x, y, yaw);
+            let (n, m, radius) = ((5, 0.01), (4, 0.2), 0.05);
+            let fast = best_on_grid(&probe, &frames, &reference, (0.0, 0.0, 0.0), n, m, radius);
+            let slow = every_candidate_scored(&probe, &frames, &reference, n, m, radius);
+            assert!(slow.is_some());
+            assert_eq!(fast, slow, "from {x}, {y}, {yaw}");
         }
     }
 
@@ -694,7 +954,7 @@ mod tests {
         let here = world.shapes.pose[s as usize];
         let mut probe = Probe::of(&world, s, 0.0);
         let counted = probe.score(&here, &frames).unwrap();
-        probe.covered = Rc::new(vec![Others::of(&world).covering(
+        probe.covered = Arc::new(vec![Others::of(&world).covering(
             s,
             here.translation,
             1.0,
