@@ -48,7 +48,7 @@ fn snapshot(world: &crate::world::World, path: &Path) -> Result<()> {
         background: glam::Vec3::new(0.12, 0.12, 0.14),
         ..RenderSettings::default()
     };
-    CpuRenderer::new(settings)
+    CpuRenderer::images_only(settings)
         .forward(
             &GaussianCloud::from_world(world),
             &camera,

@@ -100,6 +100,8 @@ impl BandContributions {
 
 pub struct CpuRenderer {
     pub settings: RenderSettings,
+    /// Whether `forward` keeps its contributions for `backward` (`images_only`: it does not).
+    keeps_contributions: bool,
     frame: Option<Frame>,
     /// Milliseconds per stage since last taken (`Renderer::take_stage_ms`).
     pub stage_ms: std::collections::BTreeMap<&'static str, f64>,
@@ -216,7 +218,7 @@ impl Chords {
 
 /// Composite the pixels `[x0, x1)` of one tile's row at height `py`, Gaussian by Gaussian in depth
 /// order, each over its chord only (`Chords`, aligned with `list`), appending what was composited
-/// to `kept`. Every pixel meets its contributors in the same order and with the same arithmetic as
+/// to `kept` where given. Every pixel meets its contributors in the same order and with the same arithmetic as
 /// a walk of the whole list for that pixel alone.
 fn composite_row(
     list: &[Projected],
@@ -225,7 +227,7 @@ fn composite_row(
     py: f32,
     s: &RenderSettings,
     row: &mut Vec<Pixel>,
-    kept: &mut Vec<Contribution>,
+    mut kept: Option<&mut Vec<Contribution>>,
 ) {
     row.clear();
     row.resize((x1 - x0) as usize, Pixel::CLEAR);
@@ -254,12 +256,14 @@ fn composite_row(
             px.colour += alpha * px.t * g.colour;
             px.depth += alpha * px.t * g.depth;
             px.t = next_t;
-            kept.push(Contribution {
-                k: k as u32,
-                column: x - x0,
-                alpha,
-                gauss,
-            });
+            if let Some(kept) = kept.as_mut() {
+                kept.push(Contribution {
+                    k: k as u32,
+                    column: x - x0,
+                    alpha,
+                    gauss,
+                });
+            }
         }
     }
 }
@@ -268,8 +272,18 @@ impl CpuRenderer {
     pub fn new(settings: RenderSettings) -> Self {
         Self {
             settings,
+            keeps_contributions: true,
             frame: None,
             stage_ms: Default::default(),
+        }
+    }
+
+    /// A renderer for images alone (debug images, recordings, silhouettes): `forward` keeps no
+    /// contributions (a full frame's are tens of MB at 640x360) and `backward` fails.
+    pub fn images_only(settings: RenderSettings) -> Self {
+        Self {
+            keeps_contributions: false,
+            ..Self::new(settings)
         }
     }
 
@@ -371,6 +385,7 @@ impl CpuRenderer {
         // The last frame's contribution buffers are reused: they grow to a frame's size once.
         let mut kept = self.frame.take().map(|f| f.bands).unwrap_or_default();
         kept.resize_with(bands.len(), Default::default);
+        let keep = self.keeps_contributions;
         let mut band_slices = split_rows(&mut colour, &bands, width)
             .into_iter()
             .zip(split_rows(&mut alpha, &bands, width))
@@ -393,15 +408,8 @@ impl CpuRenderer {
                         let list = &sorted[a as usize..b as usize];
                         let chords = &chords[a as usize..b as usize];
                         band.starts.push(band.contributions.len() as u32);
-                        composite_row(
-                            list,
-                            chords,
-                            columns,
-                            y as f32 + 0.5,
-                            s,
-                            &mut row,
-                            &mut band.contributions,
-                        );
+                        let kept = keep.then_some(&mut band.contributions);
+                        composite_row(list, chords, columns, y as f32 + 0.5, s, &mut row, kept);
                         let i0 = (y - row0) as usize * width + (columns.0 - roi.x0) as usize;
                         for (i, px) in (i0..).zip(&row) {
                             col[i] = px.colour + px.t * s.background;
@@ -438,6 +446,9 @@ impl CpuRenderer {
     /// of the last `forward` (which must have rendered this same cloud).
     pub fn backward(&mut self, cloud: &GaussianCloud, d_image: &PixelGrads) -> Result<CloudGrads> {
         let clock = std::time::Instant::now();
+        if !self.keeps_contributions {
+            bail!("backward on a renderer made for images only (CpuRenderer::images_only)")
+        }
         let Some(f) = &self.frame else {
             bail!("backward called before forward")
         };
@@ -646,6 +657,7 @@ fn split_rows<'a, T>(image: &'a mut [T], bands: &[(u32, u32)], width: usize) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::render::GaussianParams;
 
     /// Uniform in [lo, hi) from a xorshift state.
     fn uniform(state: &mut u64, lo: f32, hi: f32) -> f32 {
@@ -653,6 +665,50 @@ mod tests {
         *state ^= *state >> 7;
         *state ^= *state << 17;
         lo + (hi - lo) * ((*state >> 40) as f32 / (1u64 << 24) as f32)
+    }
+
+    /// A renderer for images only keeps no contributions: it draws the same images, bit for
+    /// bit, and refuses a backward pass rather than return gradients of nothing.
+    #[test]
+    fn a_renderer_for_images_only_draws_the_same_image_and_refuses_gradients() {
+        let camera = Camera::look_at(64, 48, 60.0, Vec3::new(0.0, -0.3, 0.3), Vec3::ZERO);
+        let mut state = 0x9E37_79B9_7F4A_7C15_u64;
+        let mut cloud = GaussianCloud::default();
+        for _ in 0..200 {
+            let mean = Vec3::new(
+                uniform(&mut state, -0.1, 0.1),
+                uniform(&mut state, -0.1, 0.1),
+                uniform(&mut state, 0.0, 0.05),
+            );
+            cloud.push(GaussianParams {
+                mean,
+                rotation: glam::Vec4::W,
+                log_scale: Vec3::splat(0.01f32.ln()),
+                opacity_logit: 1.5,
+                colour: Vec3::new(uniform(&mut state, 0.0, 1.0), 0.5, 0.2),
+            });
+        }
+        let (mut both, mut images) = (
+            CpuRenderer::new(RenderSettings::default()),
+            CpuRenderer::images_only(RenderSettings::default()),
+        );
+        let a = both.forward(&cloud, &camera, Roi::full(&camera));
+        let b = images.forward(&cloud, &camera, Roi::full(&camera));
+        assert!(
+            a.alpha.iter().any(|&x| x > 0.5),
+            "the Gaussians are in view"
+        );
+        assert_eq!(
+            (&a.colour, &a.alpha, &a.depth),
+            (&b.colour, &b.alpha, &b.depth)
+        );
+        let grads = PixelGrads {
+            colour: vec![Vec3::ONE; a.colour.len()],
+            alpha: Vec::new(),
+            depth: Vec::new(),
+        };
+        assert!(both.backward(&cloud, &grads).is_ok());
+        assert!(images.backward(&cloud, &grads).is_err());
     }
 
     /// The rasteriser visits only a Gaussian's chord of each row: that must hold every pixel

@@ -102,7 +102,7 @@ impl SilhouetteMeter {
             shape,
             object: object.to_string(),
             mask,
-            renderer: CpuRenderer::new(render.clone()),
+            renderer: CpuRenderer::images_only(render.clone()),
             occluder_threshold,
             backgrounds: vec![None; cameras],
             series: vec![Vec::new(); cameras],

@@ -131,7 +131,7 @@ pub fn publish_loop(
     latencies: Arc<Mutex<Vec<f64>>>,
     clock: RosClock,
 ) {
-    let mut renderer = crate::render::cpu::CpuRenderer::new(render);
+    let mut renderer = crate::render::cpu::CpuRenderer::images_only(render);
     let mut failures = 0usize;
     let mut fail = |what: &str, e: String| {
         failures += 1;

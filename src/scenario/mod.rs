@@ -412,7 +412,7 @@ pub fn visible_fraction(world: &World, cameras: &[Camera], object: &str) -> Vec<
             alone.opacity_logit[i] = -30.0;
         }
     }
-    let mut renderer = CpuRenderer::new(RenderSettings::default());
+    let mut renderer = CpuRenderer::images_only(RenderSettings::default());
     cameras
         .iter()
         .map(|c| {
@@ -445,7 +445,7 @@ pub fn observe(
     seed: u64,
 ) -> Vec<Vec<Vec3>> {
     let cloud = GaussianCloud::from_world(world);
-    let mut renderer = CpuRenderer::new(RenderSettings::default());
+    let mut renderer = CpuRenderer::images_only(RenderSettings::default());
     let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
     let mut gauss = move || {
         // Sum of uniforms: cheap, deterministic, close enough to normal for sensor noise.
