@@ -783,6 +783,16 @@ mod tests {
             }
         }
 
+        /// `world` seen by three cameras around the origin, above and to either side.
+        fn around(world: &World) -> Vec<Self> {
+            let eyes = [
+                Vec3::new(0.0, 0.0, 0.3),
+                Vec3::new(0.25, 0.05, 0.2),
+                Vec3::new(-0.1, -0.25, 0.15),
+            ];
+            eyes.iter().map(|&e| Self::from(world, e)).collect()
+        }
+
         fn frames(&self) -> [Frame<'_>; 1] {
             [self.frame()]
         }
@@ -843,12 +853,7 @@ mod tests {
         // candidate of a grid and every floor, a candidate `score_unless` drops scores under it
         // in full, and one it keeps scores exactly as `score` does.
         let (world, s) = slab(true, true);
-        let eyes = [
-            Vec3::new(0.0, 0.0, 0.3),
-            Vec3::new(0.25, 0.05, 0.2),
-            Vec3::new(-0.1, -0.25, 0.15),
-        ];
-        let views: Vec<Seen> = eyes.iter().map(|&e| Seen::from(&world, e)).collect();
+        let views = Seen::around(&world);
         let frames: Vec<Frame> = views.iter().map(Seen::frame).collect();
         let here = world.shapes.pose[s as usize];
         let (mut dropped, mut kept) = (0, 0);
@@ -899,12 +904,7 @@ mod tests {
         // The slab seen by three cameras, searched for from references off its pose by up to
         // 4 cm and 40 degrees: the pose (and its value) are those of scoring every candidate.
         let (world, s) = slab(true, true);
-        let eyes = [
-            Vec3::new(0.0, 0.0, 0.3),
-            Vec3::new(0.25, 0.05, 0.2),
-            Vec3::new(-0.1, -0.25, 0.15),
-        ];
-        let views: Vec<Seen> = eyes.iter().map(|&e| Seen::from(&world, e)).collect();
+        let views = Seen::around(&world);
         let frames: Vec<Frame> = views.iter().map(Seen::frame).collect();
         let here = world.shapes.pose[s as usize];
         let probe = Probe::of(&world, s, 0.0);
