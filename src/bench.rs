@@ -303,6 +303,73 @@ pub struct TickTiming {
     pub ticks_per_second: f64,
     /// Median milliseconds per tick of each correction stage (see `CorrectStats::stage_ms`).
     pub correct_stages_ms: std::collections::BTreeMap<String, f64>,
+    /// The tick that relocates the T-block when tracking starts `LOST_BY` off it; None if no
+    /// tick within `MAX_TICKS_LOST` did.
+    pub relocation: Option<RelocationTiming>,
+}
+
+/// How long finding a lost object took: the tick that moved it, and the search in that tick.
+#[derive(Debug, Serialize)]
+pub struct RelocationTiming {
+    /// Ticks run before it (the object is searched for once its agreement has stayed low).
+    pub after_ticks: usize,
+    pub tick_ms: f64,
+    pub search_ms: f64,
+    /// How far it was moved (m) and turned (degrees).
+    pub jump_m: f32,
+    pub turn_deg: f32,
+}
+
+/// The tracker's start off the T-block for `RelocationTiming`: beyond the pose pull's 4 cm, so the
+/// object is lost and searched for over the whole relocation radius (25 cm and a full turn).
+const LOST_BY: (f32, f32, f32) = (0.06, 0.05, 0.5);
+const MAX_TICKS_LOST: usize = 30;
+
+/// Track the T-block from `LOST_BY` off it until it is relocated.
+fn relocation(
+    scenario_name: &str,
+    config: &crate::config::Config,
+    cameras: &[crate::render::Camera],
+) -> Result<Option<RelocationTiming>> {
+    use crate::inputs::TickInputs;
+    use crate::math::Pose;
+    use crate::scenario;
+    use crate::tracker::{Change, Tracker};
+    let (x, y, yaw) = LOST_BY;
+    let off = Pose::new(glam::Vec3::new(x, y, 0.0), glam::Quat::from_rotation_z(yaw));
+    let mut truth = Tracker::new(
+        scenario::build(scenario_name, Pose::IDENTITY)?,
+        config,
+        false,
+    )?;
+    let mut model = Tracker::new(scenario::build(scenario_name, off)?, config, true)?;
+    let dt = config.physics.dt as f64;
+    for k in 0..MAX_TICKS_LOST {
+        truth.predict()?;
+        let images = scenario::observe(truth.world(), cameras, 0.01, 1.0, k as u64);
+        let inputs = TickInputs::with_images(model.time() + dt, cameras, images);
+        let report = model.tick(&inputs)?;
+        let moved = report.track_events.iter().find_map(|e| match e.change {
+            Change::Relocated {
+                jump_m, turn_deg, ..
+            } => Some((jump_m, turn_deg)),
+            _ => None,
+        });
+        if let Some((jump_m, turn_deg)) = moved {
+            let stages = report.correction.as_ref().map(|c| &c.stage_ms);
+            return Ok(Some(RelocationTiming {
+                after_ticks: k,
+                tick_ms: report.predict_ms + report.correct_ms,
+                search_ms: stages
+                    .and_then(|s| s.get("relocate"))
+                    .copied()
+                    .unwrap_or(0.0),
+                jump_m,
+                turn_deg,
+            }));
+        }
+    }
+    Ok(None)
 }
 
 #[derive(Debug, Serialize)]
@@ -373,6 +440,7 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
                 tick_ms: p + c,
                 ticks_per_second: 1e3 / (p + c),
                 correct_stages_ms: stages.into_iter().map(|(k, v)| (k, median(v))).collect(),
+                relocation: relocation(scenario_name, &config, &cameras)?,
             });
         }
     }

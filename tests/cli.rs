@@ -71,6 +71,44 @@ fn demo_writes_a_deterministic_physical_trajectory() {
     assert_eq!(csv, run_demo(&b), "demo output is not deterministic");
 }
 
+/// `bench tick` times each stage of a tick and the tick that finds a T-block the tracker started
+/// 8 cm and 29 degrees off: the search must find it (moved back by centimetres and degrees) and
+/// say how long the search took.
+#[test]
+fn bench_tick_times_each_stage_and_the_search_for_a_lost_t_block() {
+    let o = pegs()
+        .args([
+            "bench",
+            "tick",
+            "--json",
+            "--ticks",
+            "1",
+            "--backend",
+            "cpu",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("stdout is JSON");
+    let runs = v["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2, "320x180 and 640x360");
+    for r in runs {
+        let stages = &r["correct_stages_ms"];
+        for stage in ["render.rasterise", "render.backward_pixels", "relocate"] {
+            assert!(stages[stage].as_f64().is_some(), "no {stage} in {stages}");
+        }
+        let found = &r["relocation"];
+        let (jump, turn) = (found["jump_m"].as_f64(), found["turn_deg"].as_f64());
+        assert!(
+            jump.is_some_and(|j| (0.02..0.12).contains(&j))
+                && turn.is_some_and(|t| (5.0..45.0).contains(&t.abs())),
+            "the lost T-block was not found: {found}"
+        );
+        let (search, tick) = (found["search_ms"].as_f64(), found["tick_ms"].as_f64());
+        assert!(search.is_some_and(|s| s > 0.0) && tick >= search, "{found}");
+    }
+}
+
 #[test]
 fn bench_physics_prints_json_with_the_documented_scenes() {
     let o = pegs()

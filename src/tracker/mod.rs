@@ -140,11 +140,12 @@ impl Tracker {
             let clock = Instant::now();
             let views = inputs.views();
             let dt = self.solver.config().dt;
-            let stats = corrector.correct(&mut self.scene.world, &views, dt)?;
+            let mut stats = corrector.correct(&mut self.scene.world, &views, dt)?;
             let time = self.scene.world.time;
             report.track_events = self.health.update(time, &stats.agreement);
             let full: Vec<(Camera, &[glam::Vec3])> =
                 views.iter().map(|v| (v.camera, v.image)).collect();
+            let searching = Instant::now();
             let relocated = Self::relocate_lost(
                 corrector,
                 &mut self.scene.world,
@@ -157,6 +158,8 @@ impl Tracker {
                 self.solver.settle(event.shape);
             }
             report.track_events.extend(relocated);
+            let search_ms = searching.elapsed().as_secs_f64() * 1e3;
+            stats.stage_ms.insert("relocate".into(), search_ms);
             report.correction = Some(stats);
             report.cameras_used = views.len();
             report.correct_ms = clock.elapsed().as_secs_f64() * 1e3;
