@@ -218,8 +218,8 @@ impl Chords {
 
 /// Composite the pixels `[x0, x1)` of one tile's row at height `py`, Gaussian by Gaussian in depth
 /// order, each over its chord only (`Chords`, aligned with `list`), appending what was composited
-/// to `kept` where given. Every pixel meets its contributors in the same order and with the same arithmetic as
-/// a walk of the whole list for that pixel alone.
+/// to `kept` where given. Every pixel meets its contributors in the same order and with the same
+/// arithmetic as a walk of the whole list for that pixel alone.
 fn composite_row(
     list: &[Projected],
     chords: &[Chords],
@@ -577,10 +577,11 @@ struct BackPixel {
 }
 
 /// Walk one tile's row back to front through the contributions the forward pass kept there,
-/// Gaussian by Gaussian, each pixel from its own last contributor. With the colour "behind" each Gaussian, normalised to the
-/// transmittance just after it (`behind`), `d out / d alpha_i = T_i (v_i - behind_i)` for every
-/// channel: colour (v = c, background behind the last), alpha (v = 1, 0 behind) and depth. A
-/// Gaussian's partial sums its pixels in row order, as a pixel-by-pixel walk would.
+/// Gaussian by Gaussian, each pixel from its own last contributor. With the colour "behind" each
+/// Gaussian, normalised to the transmittance just after it (`behind`), `d out / d alpha_i = T_i
+/// (v_i - behind_i)` for every channel: colour (v = c, background behind the last), alpha (v = 1,
+/// 0 behind) and depth. A Gaussian's partial sums its pixels in row order, as a pixel-by-pixel
+/// walk would.
 fn backward_row(
     list: &[Projected],
     kept: &[Contribution],
