@@ -431,60 +431,48 @@ fn best_on_grid(
     (m, yaw_step): (i32, f32),
     radius: f32,
 ) -> Best {
-    // The best value any row has found so far (f32 bits). A candidate whose score cannot reach
-    // it is no winner, whichever row found it: rows may drop candidates in any order and still
-    // return the first best of the grid.
+    // The best value found so far (f32 bits). A candidate whose score cannot reach it is no
+    // winner, whoever found it: candidates may be dropped in any order and the grid's first best
+    // still found.
     let found = AtomicU32::new(f32::NEG_INFINITY.to_bits());
     let raise = |v: f32| {
         let _ = found.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |bits| {
             (v > f32::from_bits(bits)).then_some(v.to_bits())
         });
     };
-    // The grid's centre first (the reference, or the coarse grid's best): where it scores high,
-    // the candidates further out that could not beat it even scoring 1 are never scored.
-    let centre = candidate(reference, x, y, yaw);
-    if x.hypot(y) <= radius
-        && !probe.overlaps_others(&centre)
-        && let Some(s) = probe.score(&centre, frames)
-    {
-        raise(s - nearness(x, y, yaw, radius));
-    }
-    let rows: Vec<Best> = (-n..=n)
-        .into_par_iter()
-        .map(|i| {
-            let mut best: Best = None;
-            for j in -n..=n {
-                let (dx, dy) = (x + i as f32 * step, y + j as f32 * step);
-                if dx.hypot(dy) > radius {
-                    continue;
-                }
-                for k in -m..=m {
-                    let turn = yaw + k as f32 * yaw_step;
-                    let pose = candidate(reference, dx, dy, turn);
-                    if probe.overlaps_others(&pose) {
-                        continue;
-                    }
-                    let nearness = nearness(dx, dy, turn, radius);
-                    let floor = f32::from_bits(found.load(Ordering::Relaxed));
-                    let beaten = |bound: f32| bound - nearness < floor;
-                    if let Some(s) = probe.score_unless(&pose, frames, beaten)
-                        && best.is_none_or(|(b, _)| s - nearness > b)
-                    {
-                        best = Some((s - nearness, (dx, dy, turn)));
-                        raise(s - nearness);
-                    }
-                }
-            }
-            best
-        })
+    // Cells nearest the grid's centre (the reference, or the coarse grid's best) are scored
+    // first: where the object is near, a high score is found early, and the cells further out
+    // that could not beat it even scoring 1 are never scored.
+    let side = 2 * n + 1;
+    let mut cells: Vec<(i32, i32, i32)> = (-n..=n)
+        .flat_map(|i| (-n..=n).flat_map(move |j| (-m..=m).map(move |k| (i, j, k))))
+        .filter(|&(i, j, _)| (x + i as f32 * step).hypot(y + j as f32 * step) <= radius)
         .collect();
-    // The first best in grid order, as one pass over the rows in turn would keep it.
-    rows.into_iter().flatten().fold(None, |best, (v, at)| {
-        match best.is_none_or(|(b, _): (f32, _)| v > b) {
-            true => Some((v, at)),
-            false => best,
-        }
-    })
+    cells.sort_by_key(|&(i, j, k)| (i * i + j * j, k.abs()));
+    let best = cells
+        .par_iter()
+        .with_min_len(16)
+        .filter_map(|&(i, j, k)| {
+            let (dx, dy) = (x + i as f32 * step, y + j as f32 * step);
+            let turn = yaw + k as f32 * yaw_step;
+            let pose = candidate(reference, dx, dy, turn);
+            if probe.overlaps_others(&pose) {
+                return None;
+            }
+            let nearness = nearness(dx, dy, turn, radius);
+            let floor = f32::from_bits(found.load(Ordering::Relaxed));
+            let s = probe.score_unless(&pose, frames, |bound| bound - nearness < floor)?;
+            raise(s - nearness);
+            let order = ((i + n) * side + j + n) * (2 * m + 1) + k + m;
+            Some((s - nearness, order, (dx, dy, turn)))
+        })
+        // The highest value, and of equals the first in grid order: what one pass over the
+        // grid in order keeps.
+        .reduce_with(|a, b| match b.0 > a.0 || (b.0 == a.0 && b.1 < a.1) {
+            true => b,
+            false => a,
+        })?;
+    Some((best.0, best.2))
 }
 
 impl Corrector {
