@@ -9,9 +9,10 @@
 //! Gaussian behind the object's near side (`Probe::seen_by`), or on a pixel the model has the
 //! robot or another object on (`Others::covering`), counts neither for nor against. A coarse grid
 //! over the search radius, then a fine one around its best; candidates over another tracked
-//! object are skipped. The grid's rows are scored on every core, and a candidate is dropped as
-//! soon as its score, bounded from what is left to count, cannot reach a score already found:
-//! the search finds the same pose as one that scores every candidate in full, in grid order.
+//! object are skipped. A grid's candidates are scored on every core, nearest its centre first,
+//! and each is dropped as soon as its score, bounded from what is left to count, cannot reach a
+//! score already found: the search finds the same pose as one that scores every candidate in
+//! full, in grid order.
 //!
 //! Owns the search and its score; pulling or moving the object, and reporting a jump, are the
 //! correction's (`pose_pulls`) and the tracker's.
