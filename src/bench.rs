@@ -325,13 +325,26 @@ pub struct RelocationTiming {
 const LOST_BY: (f32, f32, f32) = (0.06, 0.05, 0.5);
 const MAX_TICKS_LOST: usize = 30;
 
+/// Tick `k` of `dt`: the ground truth moves on, is rendered into `cameras` (noise drawn from
+/// `k`), and the model tracks those images.
+fn tick_on_truth(
+    (truth, model): (&mut crate::tracker::Tracker, &mut crate::tracker::Tracker),
+    cameras: &[crate::render::Camera],
+    k: usize,
+    dt: f64,
+) -> Result<crate::tracker::TickReport> {
+    truth.predict()?;
+    let images = crate::scenario::observe(truth.world(), cameras, 0.01, 1.0, k as u64);
+    let inputs = crate::inputs::TickInputs::with_images(model.time() + dt, cameras, images);
+    model.tick(&inputs)
+}
+
 /// Track the T-block from `LOST_BY` off it until it is relocated.
 fn relocation(
     scenario_name: &str,
     config: &crate::config::Config,
     cameras: &[crate::render::Camera],
 ) -> Result<Option<RelocationTiming>> {
-    use crate::inputs::TickInputs;
     use crate::math::Pose;
     use crate::scenario;
     use crate::tracker::{Change, Tracker};
@@ -345,10 +358,7 @@ fn relocation(
     let mut model = Tracker::new(scenario::build(scenario_name, off)?, config, true)?;
     let dt = config.physics.dt as f64;
     for k in 0..MAX_TICKS_LOST {
-        truth.predict()?;
-        let images = scenario::observe(truth.world(), cameras, 0.01, 1.0, k as u64);
-        let inputs = TickInputs::with_images(model.time() + dt, cameras, images);
-        let report = model.tick(&inputs)?;
+        let report = tick_on_truth((&mut truth, &mut model), cameras, k, dt)?;
         let moved = report.track_events.iter().find_map(|e| match e.change {
             Change::Relocated {
                 jump_m, turn_deg, ..
@@ -386,7 +396,6 @@ pub struct TickBench {
 /// beforehand, outside the timing) for each resolution and backend.
 pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> Result<TickBench> {
     use crate::config::Config;
-    use crate::inputs::TickInputs;
     use crate::scenario;
     use crate::tracker::Tracker;
     let mut runs = Vec::new();
@@ -417,10 +426,7 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
             let mut stages: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
             let dt = config.physics.dt as f64;
             for k in 0..ticks + 2 {
-                truth.predict()?;
-                let images = scenario::observe(truth.world(), &cameras, 0.01, 1.0, k as u64);
-                let inputs = TickInputs::with_images(model.time() + dt, &cameras, images);
-                let report = model.tick(&inputs)?;
+                let report = tick_on_truth((&mut truth, &mut model), &cameras, k, dt)?;
                 if k >= 2 {
                     predict.push(report.predict_ms);
                     correct.push(report.correct_ms);
