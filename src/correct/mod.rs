@@ -11,6 +11,7 @@
 pub mod adam;
 pub mod agreement;
 pub mod friction;
+pub mod plant;
 pub mod pull;
 pub mod relocate;
 pub mod spread;
@@ -23,6 +24,7 @@ use adam::Adam;
 use anyhow::{Result, bail};
 pub use friction::{FrictionMemory, Support, compensate_friction};
 use glam::{Vec3, Vec4};
+pub use plant::{Plant, loop_gains};
 pub use pull::{PullState, pose_pulls, pull_share};
 use serde::{Deserialize, Serialize};
 use spread::{ROPE_SPREAD, spread_along_ropes, spread_over_rigid_bodies};
@@ -61,8 +63,17 @@ pub struct CorrectConfig {
     pub gain: f32,
     /// Acceleration per metre per second of change in a Gaussian's displacement between ticks,
     /// 1/s: the derivative term the paper suggests against the spring-like oscillation of visual
-    /// forces.
+    /// forces. `gain` and `damping` are set once for every scene; the model they push scales
+    /// them (`plant::loop_gains`) by the three settings below.
     pub damping: f32,
+    /// Tables whose kinetic friction (the model's) is under this damp the loop too little for
+    /// `gain`: it falls in proportion to the friction, down to `slippery_floor` of it on a
+    /// frictionless table (`damping` stays).
+    pub slippery_friction: f32,
+    pub slippery_floor: f32,
+    /// The share of its velocity a particle keeps each tick (`physics.damping`) `gain` is set
+    /// for: a model keeping less takes reference / kept times the gain.
+    pub reference_damping: f32,
     /// Acceleration per metre second of a Gaussian's displacement integrated over the ticks,
     /// 1/s^3, with the integral leaking at `integral_leak` (1/s). Against a steady displacement
     /// the integral settles at displacement / leak, so the force's steady part is (gain +
@@ -281,6 +292,25 @@ impl Default for CorrectConfig {
             // the slides on a slippery table 19.6 and 10.5 (4.1 and 3.6).
             gain: 1500.0,
             damping: 50.0,
+            // Concealed recordings (slippery table, kinetic friction 0.03; replayed at 160 x 90),
+            // mean tracking error of the struck box (mm), tilt | drag | weight | tether | heavy
+            // (box / box2 / box3): the scenes' former own 500 / 40 1.46 | 1.50 | 1.34 | 1.46 |
+            // 1.33 / 0.99 / 1.39; the defaults unscaled 8.81 | 8.31 | 17.21 | 9.43 | 9.88 / 8.46
+            // / 11.20 (a limit cycle of a few ticks); scaled by friction / 0.09 (500 / 50) 1.48 |
+            // 1.51 | 1.40 | 1.49 | 1.35 / 0.95 / 1.41, and all seven concealed rows pass. Scaled
+            // by friction / 0.1 with the damping as its square root (450 / 27, the same damping
+            // ratio) tracked as well but lost concealed_heavy's diagnosis (named none). pegs's
+            // scenario tables (0.4), MuJoCo's model-error recordings (0.12-0.60) and the real
+            // T-block (0.15) are above 0.09: unchanged.
+            slippery_friction: 0.09,
+            slippery_floor: 0.2,
+            // The real T-block's model keeps half its velocity a tick (its import's damping,
+            // against real images' noise), silhouette IoU per camera: the defaults unscaled
+            // 0.7958 / 0.7690 / 0.3230; scaled (2970 / 50) 0.7973 / 0.8032 / 0.3294; its
+            // import's former own 5800 / 24 at lr 0.0007 0.7976 / 0.7995 / 0.3275; 2970 with
+            // damping 99 0.7963 / 0.7954 / 0.3276, with 29.5 0.7988 / 0.7972 / 0.3300. Every
+            // other scene keeps 0.99: unchanged.
+            reference_damping: 0.99,
             integral: 0.0,
             integral_leak: 2.0,
             weight_by_gradient: false,
@@ -356,6 +386,20 @@ impl CorrectConfig {
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 bail!("correct.{name} must be finite and >= 0, got {v}");
+            }
+        }
+        if !(self.slippery_friction.is_finite() && self.slippery_friction > 0.0) {
+            bail!(
+                "correct.slippery_friction must be finite and > 0, got {}",
+                self.slippery_friction
+            );
+        }
+        for (name, v) in [
+            ("slippery_floor", self.slippery_floor),
+            ("reference_damping", self.reference_damping),
+        ] {
+            if !(v > 0.0 && v <= 1.0) {
+                bail!("correct.{name} must be in (0, 1], got {v}");
             }
         }
         if !self.rope_inertia.is_finite() || self.rope_inertia <= 0.0 {
@@ -434,6 +478,8 @@ pub struct Corrector {
     backgrounds: Vec<(Camera, Vec<Vec3>, Vec<f32>)>,
     /// The table the objects rest on, as the model has it (`friction_compensation`).
     support: Option<Support>,
+    /// The model's physics the gain and damping are scaled for (`loop_gains`).
+    plant: Plant,
 }
 
 impl Corrector {
@@ -456,12 +502,20 @@ impl Corrector {
             turn: 0,
             backgrounds: Vec::new(),
             support: None,
+            plant: Plant::default(),
         })
     }
 
     /// The table the model's objects rest on (friction compensation needs it).
     pub fn with_support(mut self, support: Option<Support>) -> Self {
         self.support = support;
+        self
+    }
+
+    /// The model the visual forces push: its table's friction and velocity damping scale the
+    /// configured gain and damping (`plant::loop_gains`). Default: pegs's default physics.
+    pub fn with_plant(mut self, plant: Plant) -> Self {
+        self.plant = plant;
         self
     }
 
@@ -561,7 +615,9 @@ impl Corrector {
         for (a, len) in self.adam.iter_mut().zip([3 * n, 4 * n, 3 * n, n]) {
             a.reset(len);
         }
-        let c = self.config.clone();
+        // The gain and damping this model takes (its table's friction and velocity damping).
+        let mut c = self.config.clone();
+        (c.gain, c.damping) = loop_gains(&self.config, &self.plant);
         let per_iteration = match c.cameras_per_iteration as usize {
             0 => views.len(),
             k => k.min(views.len()),

@@ -440,24 +440,16 @@ pub fn import_config(dir: &Path) -> Result<Config> {
     // The arm is not modelled (no joint trajectory in the source): pixels that neither the
     // objects nor the table explain are occluders, left out of the photometric loss. Its pushes
     // reach the block only through visual forces, which real images make noisy: a strongly damped
-    // model with smaller Adam steps and a stronger gain follows them without being thrown about
-    // (with the default damping and steps, noise threw the block 1-3 cm off the table). The
-    // file's 498 Gaussians sit on 241 of its 466 particles. The gains below were forces per
-    // particle (N/m, with the default 0.05 N s/m damping): 12 is 5800 / s^2 (and 24 / s) as
-    // accelerations. With the default gain, damping and lr the IoU is 0.79 / 0.80 / 0.32 (one
-    // camera per iteration). Whole recording, silhouette IoU per camera, damping 0.5, lr 0.0007:
-    // gain 3 -> 0.65 / 0.63 / 0.29, 6 -> 0.79 / 0.80 / 0.33, 9 -> 0.80 / 0.81 / 0.33, 12 -> 0.80 /
-    // 0.81 / 0.33, 18 -> 0.80 / 0.81 / 0.33 with the block lifted 1.5 cm at times. The third
-    // camera mostly looks past the arm. The block's mass and friction are not in the source:
-    // 0.5 kg (visual inertia and weight against vertical noise) on friction 0.2 / 0.15 (the same
-    // visual force still slides it) keep it on the table.
+    // model (half its velocity kept a tick) follows them without being thrown about (with the
+    // default damping, noise threw the block 1-3 cm off the table). The visual forces' gain grows
+    // by itself for a model that damped (`correct::plant`); the visual-force settings are the
+    // defaults. The third camera mostly looks past the arm. The block's mass and friction are not
+    // in the source: 0.5 kg (visual inertia and weight against vertical noise) on friction 0.2 /
+    // 0.15 (the same visual force still slides it) keep it on the table.
     config.physics.ground.static_friction = 0.2;
     config.physics.ground.kinetic_friction = 0.15;
     config.correct.occluder_threshold = 0.35;
     config.physics.damping = 0.5;
-    config.correct.lr_mean = 0.0007;
-    config.correct.gain = 5800.0;
-    config.correct.damping = 24.0;
     Ok(config)
 }
 

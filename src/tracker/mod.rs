@@ -13,7 +13,7 @@ pub use health::{Change, TrackEvent, TrackHealth};
 pub use observer::{Observer, Tick};
 
 use crate::config::Config;
-use crate::correct::{CorrectConfig, CorrectStats, Corrector, Support, relocate};
+use crate::correct::{CorrectConfig, CorrectStats, Corrector, Plant, Support, relocate};
 use crate::inputs::{Inputs, TickInputs};
 use crate::math::Pose;
 use crate::physics::{PhysicsConfig, Solver, Touched};
@@ -104,11 +104,14 @@ impl Tracker {
             kinetic_friction: physics.ground.kinetic_friction,
             gravity: physics.gravity,
         });
+        let plant = Plant::of(&physics);
         let solver = Solver::new(physics, &scene.world)?;
         let corrector = match correct {
-            Some((c, render)) if c.enabled => {
-                Some(Corrector::new(c, render)?.with_support(support))
-            }
+            Some((c, render)) if c.enabled => Some(
+                Corrector::new(c, render)?
+                    .with_support(support)
+                    .with_plant(plant),
+            ),
             _ => None,
         };
         Ok(Self {
