@@ -420,6 +420,22 @@ mod tests {
         assert!(unscaled > 2.0 * scaled, "{unscaled} against {scaled}");
     }
 
+    /// A model that keeps half its velocity a tick (the real T-block's import) follows the
+    /// gliding box only as far as the visual forces drag it: its gain grows to make up for what
+    /// the damping takes (`correct::plant`), and the box lags less than at the gain set for a
+    /// lightly damped model.
+    #[test]
+    fn a_model_that_loses_half_its_velocity_a_tick_is_pushed_harder_and_lags_less() {
+        let name = "concealed_control";
+        let mut damped = model_config();
+        damped.physics.damping = 0.5;
+        let scaled = tracked_off_by(name, &damped);
+        damped.correct.reference_damping = damped.physics.damping;
+        let unscaled = tracked_off_by(name, &damped);
+        eprintln!("scaled {scaled} m, unscaled {unscaled} m");
+        assert!(scaled < 0.85 * unscaled, "{scaled} against {unscaled}");
+    }
+
     /// Centres of box, box2, box3 at each of `times` in `scene` run with `config`.
     fn centres_at(scene: Scene, config: &Config, times: &[f64]) -> Vec<[Vec3; 3]> {
         let mut world = Tracker::new(scene, config, false).unwrap();
