@@ -64,7 +64,7 @@ pub struct CorrectConfig {
     /// Acceleration per metre per second of change in a Gaussian's displacement between ticks,
     /// 1/s: the derivative term the paper suggests against the spring-like oscillation of visual
     /// forces. `gain` and `damping` are set once for every scene; the model they push scales
-    /// them (`plant::loop_gains`) by the three settings below.
+    /// the gain (`plant::loop_gains`) by the three settings below.
     pub damping: f32,
     /// Tables whose kinetic friction (the model's) is under this damp the loop too little for
     /// `gain`: it falls in proportion to the friction, down to `slippery_floor` of it on a
@@ -478,7 +478,7 @@ pub struct Corrector {
     backgrounds: Vec<(Camera, Vec<Vec3>, Vec<f32>)>,
     /// The table the objects rest on, as the model has it (`friction_compensation`).
     support: Option<Support>,
-    /// The model's physics the gain and damping are scaled for (`loop_gains`).
+    /// The model's physics the gain is scaled for (`loop_gains`).
     plant: Plant,
 }
 
@@ -513,7 +513,7 @@ impl Corrector {
     }
 
     /// The model the visual forces push: its table's friction and velocity damping scale the
-    /// configured gain and damping (`plant::loop_gains`). Default: pegs's default physics.
+    /// configured gain (`plant::loop_gains`). Default: pegs's default physics.
     pub fn with_plant(mut self, plant: Plant) -> Self {
         self.plant = plant;
         self
