@@ -519,6 +519,11 @@ impl Corrector {
         self
     }
 
+    /// The gain (1/s^2) the visual forces take on this model (`plant::loop_gains`).
+    pub fn gain(&self) -> f32 {
+        loop_gains(&self.config, &self.plant).0
+    }
+
     /// Optimise the tracked objects' Gaussians against `views` and add the resulting visual
     /// forces to the world's particles (they act in the next predict step). `dt` is the tick.
     pub fn correct(&mut self, world: &mut World, views: &[View], dt: f32) -> Result<CorrectStats> {

@@ -96,7 +96,7 @@ pub fn tick_loop(
         let inputs = take_inputs(&shared, next, applied.correct.max_image_age as f64)?;
         let report = tracker.tick(&inputs)?;
         index += 1;
-        outputs.gain = applied.correct.gain;
+        outputs.gain = tracker.visual_gain().unwrap_or(applied.correct.gain);
         outputs.max_age = applied.correct.max_image_age as f64;
         outputs.tick(&Tick {
             index,

@@ -305,6 +305,12 @@ impl Tracker {
         self.corrector.as_ref().is_some_and(|c| c.config.enabled)
     }
 
+    /// The visual-force gain (1/s^2) the corrections take, scaled for the model's physics
+    /// (`correct::plant`); None without visual forces.
+    pub fn visual_gain(&self) -> Option<f32> {
+        self.corrector.as_ref().map(|c| c.gain())
+    }
+
     /// Restart the world's clock at `t` (the node's clock went back: a recording played again).
     /// The world stays where it is; the next tick ends at `t` + dt.
     pub fn restart_clock(&mut self, t: f64) {
@@ -415,6 +421,21 @@ mod tests {
             "{} vs {tip}",
             pose.translation
         );
+    }
+
+    /// The gain the node reports is the one the corrections take: the configured one on pegs's
+    /// table, a third of it where the model's table is a third as slippery as `slippery_friction`.
+    #[test]
+    fn the_reported_gain_is_the_one_the_model_s_table_scales_to() {
+        let mut config = crate::config::Config::default();
+        let rough = Tracker::new(crate::scene::tabletop().unwrap(), &config, true).unwrap();
+        assert_eq!(rough.visual_gain(), Some(config.correct.gain));
+        config.physics.ground.kinetic_friction = config.correct.slippery_friction / 3.0;
+        let slippery = Tracker::new(crate::scene::tabletop().unwrap(), &config, true).unwrap();
+        let gain = slippery.visual_gain().unwrap();
+        assert!((gain - config.correct.gain / 3.0).abs() < 1e-2, "{gain}");
+        let off = Tracker::new(crate::scene::tabletop().unwrap(), &config, false).unwrap();
+        assert_eq!(off.visual_gain(), None);
     }
 
     /// Correction runs while it is enabled, stops when a live change disables it and resumes when
