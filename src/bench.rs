@@ -325,20 +325,6 @@ pub struct RelocationTiming {
 const LOST_BY: (f32, f32, f32) = (0.06, 0.05, 0.5);
 const MAX_TICKS_LOST: usize = 30;
 
-/// Tick `k` of `dt`: the ground truth moves on, is rendered into `cameras` (noise drawn from
-/// `k`), and the model tracks those images.
-fn tick_on_truth(
-    (truth, model): (&mut crate::tracker::Tracker, &mut crate::tracker::Tracker),
-    cameras: &[crate::render::Camera],
-    k: usize,
-    dt: f64,
-) -> Result<crate::tracker::TickReport> {
-    truth.predict()?;
-    let images = crate::scenario::observe(truth.world(), cameras, 0.01, 1.0, k as u64);
-    let inputs = crate::inputs::TickInputs::with_images(model.time() + dt, cameras, images);
-    model.tick(&inputs)
-}
-
 /// Track the T-block from `LOST_BY` off it until it is relocated.
 fn relocation(
     scenario_name: &str,
@@ -358,7 +344,7 @@ fn relocation(
     let mut model = Tracker::new(scenario::build(scenario_name, off)?, config, true)?;
     let dt = config.physics.dt as f64;
     for k in 0..MAX_TICKS_LOST {
-        let report = tick_on_truth((&mut truth, &mut model), cameras, k, dt)?;
+        let report = scenario::tick_on_truth((&mut truth, &mut model), cameras, k, dt)?;
         let moved = report.track_events.iter().find_map(|e| match e.change {
             Change::Relocated {
                 jump_m, turn_deg, ..
@@ -426,7 +412,7 @@ pub fn tick(ticks: usize, backends: &[Backend], resolutions: &[(u32, u32)]) -> R
             let mut stages: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
             let dt = config.physics.dt as f64;
             for k in 0..ticks + 2 {
-                let report = tick_on_truth((&mut truth, &mut model), &cameras, k, dt)?;
+                let report = scenario::tick_on_truth((&mut truth, &mut model), &cameras, k, dt)?;
                 if k >= 2 {
                     predict.push(report.predict_ms);
                     correct.push(report.correct_ms);

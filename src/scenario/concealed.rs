@@ -383,7 +383,6 @@ mod tests {
     /// (before, through and after the first strike at 0.9 s), tracked with `config` from 1 cm
     /// and 3 degrees off in the scenario's three cameras at 80 x 45.
     fn tracked_off_by(name: &str, config: &Config) -> f32 {
-        use crate::inputs::TickInputs;
         let cameras = super::super::cameras(name, 80, 45);
         let truth_config = super::super::truth_config(name);
         let mut truth =
@@ -394,10 +393,7 @@ mod tests {
         let dt = config.physics.dt as f64;
         let mut off_by = Vec::new();
         for k in 0..75 {
-            truth.predict().unwrap();
-            let images = super::super::observe(truth.world(), &cameras, 0.01, 1.0, k);
-            let inputs = TickInputs::with_images(model.time() + dt, &cameras, images);
-            model.tick(&inputs).unwrap();
+            super::super::tick_on_truth((&mut truth, &mut model), &cameras, k, dt).unwrap();
             let (t, m) = (truth.world(), model.world());
             off_by.push(t.shape_centroid(id).distance(m.shape_centroid(id)));
         }

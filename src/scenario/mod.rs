@@ -473,6 +473,21 @@ pub fn observe(
         .collect()
 }
 
+/// Tick `k` of tracking on rendered truth: the true world moves on a tick, is rendered into
+/// `cameras` (`observe`, noise 0.01 drawn from `k`), and `model` tracks those images, its tick
+/// ending `dt` after its clock.
+pub fn tick_on_truth(
+    (truth, model): (&mut crate::tracker::Tracker, &mut crate::tracker::Tracker),
+    cameras: &[Camera],
+    k: usize,
+    dt: f64,
+) -> Result<crate::tracker::TickReport> {
+    truth.predict()?;
+    let images = observe(truth.world(), cameras, 0.01, 1.0, k as u64);
+    let inputs = crate::inputs::TickInputs::with_images(model.time() + dt, cameras, images);
+    model.tick(&inputs)
+}
+
 /// What an ideal depth camera with instance segmentation sees: per pixel, the depth (m along the
 /// optical axis, 0 where the ray meets nothing) of the first solid its centre ray meets, and the
 /// label of that solid (k + 1 for `objects[k]`, 0 for anything else). Solids are the particles'
