@@ -32,6 +32,11 @@ if ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 || ! command -v ff
   $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends mesa-vulkan-drivers libvulkan1 ffmpeg \
     g++ make iproute2 python3-venv >/dev/null
 fi
+# The tests write their recordings (up to a gigabyte per run) under the system temp directory:
+# this run gets its own, removed when every test passed and kept, with its path said, when one failed.
+SCRATCH=$(mktemp -d "${TMPDIR:-/tmp}/pegs-tests.XXXXXX")
+export TMPDIR="$SCRATCH"
+trap 'status=$?; if [ "$status" = 0 ]; then rm -rf "$SCRATCH"; else echo "tests failed: their files are kept in $SCRATCH" >&2; fi' EXIT
 # Mesa wants a private runtime directory; without one it prints a harmless error on every start.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 chmod 700 "$XDG_RUNTIME_DIR"
