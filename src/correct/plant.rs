@@ -12,8 +12,10 @@
 //!
 //! The damping stays as configured: where the table damps less, the visual damping's share of the
 //! loop's grows, and a model's own velocity damping adds to it. At or above `slippery_friction`
-//! and at `reference_damping` the configured gain is returned unchanged, bit for bit. This module owns that rule and nothing else: it never
-//! measures displacements or applies forces (`correct`), and never reads images.
+//! and at `reference_damping` the configured gain is returned unchanged, bit for bit.
+//!
+//! This module owns that rule and nothing else: it never measures displacements or applies
+//! forces (`correct`), and never reads images.
 
 use super::CorrectConfig;
 use crate::physics::PhysicsConfig;
