@@ -285,12 +285,14 @@ fn inputs_status(s: &Shared) -> DiagnosticStatus {
 }
 
 /// A tracked object's state for `/diagnostics`: its name, whether it is lost, its newest
-/// silhouette agreement and how many times it was relocated (`tracker::health`).
+/// silhouette agreement and how many times it was relocated (`tracker::health`), and whether it
+/// stands off the modelled table (`tracker::TableEdge`).
 pub struct ObjectHealth {
     pub name: String,
     pub lost: bool,
     pub agreement: Option<f32>,
     pub relocations: usize,
+    pub off_table: bool,
 }
 
 fn object_status(o: &ObjectHealth) -> DiagnosticStatus {
@@ -303,11 +305,18 @@ fn object_status(o: &ObjectHealth) -> DiagnosticStatus {
                  the model holds it where the images do not show it"
             ),
         ),
+        false if o.off_table => (
+            DiagnosticStatus::WARN,
+            "off the modelled table: nothing behind it is modelled and its tracking degrades; \
+             widen scene.table to what the cameras see of the table"
+                .to_string(),
+        ),
         false => (DiagnosticStatus::OK, "tracked".to_string()),
     };
     let values = vec![
         kv("silhouette_agreement", agreement),
         kv("relocations", o.relocations.to_string()),
+        kv("off_table", o.off_table),
     ];
     status(
         level,

@@ -495,6 +495,7 @@ impl Outputs {
                 lost: health.is_lost(shape),
                 agreement: health.agreement(shape),
                 relocations: health.relocations(shape),
+                off_table: tick.tracker.table_edge().is_off(shape),
             })
             .collect();
         let s = self.shared.lock().ok()?;

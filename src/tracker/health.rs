@@ -36,6 +36,17 @@ pub enum Change {
         jump_m: f32,
         turn_deg: f32,
     },
+    /// The object's centre left the modelled table (`table_edge`): nothing of the scene is
+    /// modelled behind it there. `at` is its centre (m, world); the table's footprint in x, y.
+    OffTable {
+        at: [f32; 3],
+        table_min: [f32; 2],
+        table_max: [f32; 2],
+    },
+    /// Back on the modelled table.
+    BackOnTable {
+        at: [f32; 3],
+    },
 }
 
 /// An object lost, found again or relocated, at the end of the tick that decided it.
@@ -65,6 +76,21 @@ impl TrackEvent {
                  where the model had it (the images agree {a:.2} there): moved by something \
                  outside the model",
                 jump_m * 1e3
+            ),
+            Change::OffTable {
+                at,
+                table_min: lo,
+                table_max: hi,
+            } => format!(
+                "object {object}: off the modelled table at {at_s:.2} s, its centre at x {:.3} y \
+                 {:.3} m beyond scene.table (x {:.2} to {:.2}, y {:.2} to {:.2}): nothing behind \
+                 it is modelled and its tracking degrades; widen scene.table to what the cameras \
+                 see of the table",
+                at[0], at[1], lo[0], hi[0], lo[1], hi[1]
+            ),
+            Change::BackOnTable { at } => format!(
+                "object {object}: back on the modelled table at {at_s:.2} s (x {:.3} y {:.3} m)",
+                at[0], at[1]
             ),
         }
     }

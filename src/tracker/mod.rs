@@ -8,9 +8,11 @@
 
 pub mod health;
 mod observer;
+mod table_edge;
 
 pub use health::{Change, TrackEvent, TrackHealth};
 pub use observer::{Observer, Tick};
+pub use table_edge::TableEdge;
 
 use crate::config::Config;
 use crate::correct::{CorrectConfig, CorrectStats, Corrector, Plant, Support, relocate};
@@ -38,6 +40,8 @@ pub struct Tracker {
     /// starts), and when it was last searched for.
     well_tracked: Vec<Option<Pose>>,
     searched_at: Vec<f64>,
+    /// Which objects stand off the modelled table (`table_edge`).
+    table_edge: TableEdge,
 }
 
 /// Seconds between two searches for the same object.
@@ -114,6 +118,7 @@ impl Tracker {
             ),
             _ => None,
         };
+        let table_edge = TableEdge::of(&scene.world);
         Ok(Self {
             scene,
             solver,
@@ -121,6 +126,7 @@ impl Tracker {
             health: TrackHealth::default(),
             well_tracked: Vec::new(),
             searched_at: Vec::new(),
+            table_edge,
         })
     }
 
@@ -161,6 +167,8 @@ impl Tracker {
                 self.solver.settle(event.shape);
             }
             report.track_events.extend(relocated);
+            let edge = self.table_edge.update(&self.scene.world, time);
+            report.track_events.extend(edge);
             let search_ms = searching.elapsed().as_secs_f64() * 1e3;
             stats.stage_ms.insert("relocate".into(), search_ms);
             report.correction = Some(stats);
@@ -284,6 +292,11 @@ impl Tracker {
     /// The world's clock: when the last tick ended, s.
     pub fn time(&self) -> f64 {
         self.scene.world.time
+    }
+
+    /// Which objects stand off the modelled table.
+    pub fn table_edge(&self) -> &TableEdge {
+        &self.table_edge
     }
 
     /// Which objects are lost, and their newest silhouette agreement.
