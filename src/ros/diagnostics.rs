@@ -386,3 +386,35 @@ fn tracking_status(tick: &TickInputs, window: &Window) -> DiagnosticStatus {
     ];
     status(level, "pegs: tracking".into(), message, "pegs", values)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn object(lost: bool, off_table: bool) -> DiagnosticStatus {
+        object_status(&ObjectHealth {
+            name: "box".into(),
+            lost,
+            agreement: Some(0.9),
+            relocations: 0,
+            off_table,
+        })
+    }
+
+    fn value(s: &DiagnosticStatus, key: &str) -> String {
+        let kv = s.values.iter().find(|kv| kv.key == key);
+        kv.map(|kv| kv.value.clone()).unwrap_or_default()
+    }
+
+    #[test]
+    fn an_object_off_the_modelled_table_is_a_warning_and_a_lost_one_an_error() {
+        let tracked = object(false, false);
+        assert_eq!(tracked.level, DiagnosticStatus::OK);
+        assert_eq!(value(&tracked, "off_table"), "false");
+        let off = object(false, true);
+        assert_eq!(off.level, DiagnosticStatus::WARN);
+        assert!(off.message.contains("widen scene.table"), "{}", off.message);
+        assert_eq!(value(&off, "off_table"), "true");
+        assert_eq!(object(true, true).level, DiagnosticStatus::ERROR);
+    }
+}

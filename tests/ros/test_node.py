@@ -387,8 +387,10 @@ def test_a_camera_that_stops_is_reported_and_tracking_continues(main_run):
     assert level(status["pegs: camera cam0"]) in (0, 1)
     # The tracked box's own status: tracked, its silhouette agreeing with the images.
     box = status["pegs: object box"]
-    agreement = {kv.key: kv.value for kv in box.values}["silhouette_agreement"]
+    values = {kv.key: kv.value for kv in box.values}
+    agreement = values["silhouette_agreement"]
     assert level(box) == 0 and float(agreement) > 0.6, (box.message, agreement)
+    assert values["off_table"] == "false", values
     # The ages of the images the ticks used are reported, and none is past the limit (70 ms).
     ages = {kv.key: kv.value for kv in status["pegs: camera cam0"].values}
     assert int(ages["ticks_used"]) > 0 and 0 < float(ages["age_used_ms_max"]) <= 70.0, ages
