@@ -49,13 +49,15 @@ pub enum Change {
     },
 }
 
-/// An object lost, found again or relocated, at the end of the tick that decided it.
+/// An object lost, found again, relocated, or off the modelled table or back on it, at the end of
+/// the tick that decided it.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TrackEvent {
     pub shape: ShapeId,
     pub time: f64,
     pub change: Change,
-    /// The agreement that decided it (relocated: the images' agreement with the new pose).
+    /// The agreement that decided it (relocated: the images' agreement with the new pose; NaN,
+    /// `null` in JSON, for off and back on the table, which no agreement decides).
     pub agreement: f32,
 }
 

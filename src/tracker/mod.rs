@@ -167,10 +167,10 @@ impl Tracker {
                 self.solver.settle(event.shape);
             }
             report.track_events.extend(relocated);
-            let edge = self.table_edge.update(&self.scene.world, time);
-            report.track_events.extend(edge);
             let search_ms = searching.elapsed().as_secs_f64() * 1e3;
             stats.stage_ms.insert("relocate".into(), search_ms);
+            let edge = self.table_edge.update(&self.scene.world, time);
+            report.track_events.extend(edge);
             report.correction = Some(stats);
             report.cameras_used = views.len();
             report.correct_ms = clock.elapsed().as_secs_f64() * 1e3;
