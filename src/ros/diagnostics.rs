@@ -307,9 +307,10 @@ fn object_status(o: &ObjectHealth) -> DiagnosticStatus {
         ),
         false if o.off_table => (
             DiagnosticStatus::WARN,
-            "off the modelled table: nothing behind it is modelled and its tracking degrades; \
-             widen scene.table to what the cameras see of the table"
-                .to_string(),
+            format!(
+                "off the modelled table: {}",
+                crate::tracker::OFF_TABLE_ADVICE
+            ),
         ),
         false => (DiagnosticStatus::OK, "tracked".to_string()),
     };

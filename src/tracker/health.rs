@@ -85,10 +85,14 @@ impl TrackEvent {
                 table_max: hi,
             } => format!(
                 "object {object}: off the modelled table at {at_s:.2} s, its centre at x {:.3} y \
-                 {:.3} m beyond scene.table (x {:.2} to {:.2}, y {:.2} to {:.2}): nothing behind \
-                 it is modelled and its tracking degrades; widen scene.table to what the cameras \
-                 see of the table",
-                at[0], at[1], lo[0], hi[0], lo[1], hi[1]
+                 {:.3} m beyond scene.table (x {:.2} to {:.2}, y {:.2} to {:.2}): {}",
+                at[0],
+                at[1],
+                lo[0],
+                hi[0],
+                lo[1],
+                hi[1],
+                super::OFF_TABLE_ADVICE
             ),
             Change::BackOnTable { at } => format!(
                 "object {object}: back on the modelled table at {at_s:.2} s (x {:.3} y {:.3} m)",

@@ -12,7 +12,7 @@ mod table_edge;
 
 pub use health::{Change, TrackEvent, TrackHealth};
 pub use observer::{Observer, Tick};
-pub use table_edge::TableEdge;
+pub use table_edge::{OFF_TABLE_ADVICE, TableEdge};
 
 use crate::config::Config;
 use crate::correct::{CorrectConfig, CorrectStats, Corrector, Plant, Support, relocate};

@@ -15,6 +15,10 @@ use super::{Change, TrackEvent};
 use crate::world::{NO_PARENT, ShapeId, World};
 use glam::Vec2;
 
+/// What an object off the modelled table means and what to do, for its log line and its status.
+pub const OFF_TABLE_ADVICE: &str = "nothing behind it is modelled and its tracking degrades; \
+     widen scene.table to what the cameras see of the table";
+
 /// An object off the table is back on it once its centre is this far (m) inside the edge.
 const BACK_INSIDE: f32 = 0.005;
 /// Fewer static Gaussians than this are no table (a scene without one is never off it).
