@@ -94,6 +94,17 @@ def events(metrics: dict) -> str:
     return "; ".join(said)
 
 
+def write_section(readme: Path, section: str, text: str) -> None:
+    """Put `text` between README's `<!-- section:start -->` and `<!-- section:end -->` markers."""
+    body = readme.read_text()
+    start, end = f"<!-- {section}:start -->\n", f"<!-- {section}:end -->"
+    if start not in body or end not in body:
+        sys.exit(f"{readme} has no {start.strip()} ... {end} markers")
+    head, rest = body.split(start, 1)
+    readme.write_text(head + start + text + end + rest.split(end, 1)[1])
+    print(f"updated {readme}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--pegs", required=True)
@@ -143,13 +154,7 @@ def main() -> None:
     (a.out / "tracking.md").write_text(text)
     print(f"{good} of {len(all_means)} objects under {GOOD_MM} mm; replays took {sum(seconds):.0f} s")
     if a.readme:
-        readme = a.readme.read_text()
-        start, end = f"<!-- {section}:start -->\n", f"<!-- {section}:end -->"
-        if start not in readme or end not in readme:
-            sys.exit(f"{a.readme} has no {start.strip()} ... {end} markers")
-        head, rest = readme.split(start, 1)
-        a.readme.write_text(head + start + text + end + rest.split(end, 1)[1])
-        print(f"updated {a.readme}")
+        write_section(a.readme, section, text)
 
 
 if __name__ == "__main__":
