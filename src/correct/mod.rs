@@ -101,6 +101,9 @@ pub struct CorrectConfig {
     /// forces cannot grow with the error past a few mm and vanish once the rendered object no
     /// longer overlaps the observed one; this offset does both. 0 turns it off.
     pub pose_search_radius: f32,
+    /// The search also scores points this far (m) outside the object's outline, which must show
+    /// the static scene (`relocate::Probe::add_ring`). 0: the object's own Gaussians only.
+    pub pose_search_ring: f32,
     pub pose_gain: f32,
     /// Soft (10, not 30): the offset is measured once a tick on a grid of a third of a
     /// centimetre, so its change per second jumps by a grid step at a time, and with the pull held
@@ -317,6 +320,7 @@ impl Default for CorrectConfig {
             rope_inertia: 2.0,
             min_displacement: 1e-4,
             pose_search_radius: 0.04,
+            pose_search_ring: 0.0,
             // MuJoCo model-error recordings, seeds 0-2 (tuning), mean error of 24 objects: 600 /
             // 40 / 3000 left a T-block on a sticky table oscillating (16.9 mm); 300 / 30 / 1500
             // held it (3.4 mm) and the rest alike. 1500 / 50 (the Gaussians' gain) diverged: a
@@ -372,6 +376,7 @@ impl CorrectConfig {
             ("min_displacement", self.min_displacement),
             ("max_image_age", self.max_image_age),
             ("pose_search_radius", self.pose_search_radius),
+            ("pose_search_ring", self.pose_search_ring),
             ("pose_gain", self.pose_gain),
             ("pose_damping", self.pose_damping),
             ("pose_integral", self.pose_integral),
