@@ -1,13 +1,19 @@
 """Issue 25's before/after per case: every recording of the given MuJoCo sets replayed by two pegs
 builds, summed up per kind of model error, written into the README.
 
-    VENV/bin/python cases.py --sets DIR [DIR ...] --pegs NEW --baseline OLD [--readme README.md] [--reuse]
+    VENV/bin/python cases.py --sets DIR [DIR ...] --pegs NEW [--baseline OLD] [--set SECTION.KEY=VALUE ...]
+        [--baseline-set SECTION.KEY=VALUE ...] [--labels BEFORE AFTER] [--readme README.md] [--section NAME]
+        [--reuse]
 
 Each recording (a folder with `bag`, `config.yaml`, `truth.json`, as `generate.py --kind
 model_errors` writes it) is replayed with its own config by each build into `out_after` and
-`out_before` (--reuse keeps a replay already there). Per case: mean error (mm, over its objects),
-objects under 5 mm mean, objects with p95 of 10 mm or more, median final error, and the tracker's
-events (relocated, lost, off the table) after. Writes the README section `mujoco-cases`.
+`out_before` (--reuse keeps a replay already there). `--set` adds a key to the new side's config
+(`--baseline-set` to the baseline's), e.g. `--set correct.pose_search_ring=0.004`, for a change
+that is an option: both sides may then be one build (--baseline defaults to --pegs), and the
+replays go to `out_after_` / `out_before_` plus the settings, beside the config they ran with.
+Per case: mean error (mm, over its objects), objects under 5 mm mean, objects with p95 of 10 mm
+or more, median final error, and the tracker's events (relocated, lost, off the table) after.
+Writes the README section `mujoco-cases` (or `--section`).
 """
 
 from __future__ import annotations
@@ -28,9 +34,38 @@ PEAK_MM = 10.0  # issue 25's bar for the p95 (table.GOOD_MM for the mean)
 ORDER = ["control_still", "control_pushed", "hand", "slippery", "sticky", "tether", "heavy5"]
 
 
-def replay(pegs: str, folder: Path, out: Path, reuse: bool) -> dict:
+def with_settings(config: str, settings: list[str]) -> str:
+    """`config` (a generated config.yaml: `pegs:` then `ros__parameters:`) with each
+    SECTION.KEY=VALUE added as a section of its own; a section the config has already is refused
+    rather than merged by hand."""
+    sections: dict[str, list[str]] = {}
+    for setting in settings:
+        key, eq, value = setting.partition("=")
+        section, dot, name = key.partition(".")
+        if not (eq and dot and section and name and value):
+            sys.exit(f"--set {setting!r}: expected SECTION.KEY=VALUE")
+        if f"\n    {section}:" in config:
+            sys.exit(f"--set {setting!r}: the recording's config has a {section} section already")
+        sections.setdefault(section, []).append(f"{name}: {value}")
+    added = "".join(f"    {section}: {{{', '.join(keys)}}}\n" for section, keys in sections.items())
+    head = "  ros__parameters:\n"
+    if head not in config:
+        sys.exit("config.yaml has no ros__parameters")
+    return config.replace(head, head + added, 1)
+
+
+def out_dir(folder: Path, side: str, settings: list[str]) -> Path:
+    return folder / ("_".join([f"out_{side}"] + settings).replace("/", "_"))
+
+
+def replay(pegs: str, folder: Path, out: Path, reuse: bool, settings: list[str]) -> dict:
     if not (reuse and (out / "metrics.json").is_file()):
-        result = subprocess.run([pegs, "replay", str(folder / "bag"), "--config", str(folder / "config.yaml"),
+        config = folder / "config.yaml"
+        if settings:
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "config.yaml").write_text(with_settings(config.read_text(), settings))
+            config = out / "config.yaml"
+        result = subprocess.run([pegs, "replay", str(folder / "bag"), "--config", str(config),
                                  "--out", str(out)], capture_output=True, text=True)
         if result.returncode != 0:
             sys.exit(f"{folder}: replay failed: {result.stderr.strip()[-300:]}")
@@ -46,23 +81,32 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sets", type=Path, nargs="+", required=True)
     ap.add_argument("--pegs", required=True)
-    ap.add_argument("--baseline", required=True)
+    ap.add_argument("--baseline", help="the build before (default: --pegs)")
+    ap.add_argument("--set", dest="settings", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="added to each recording's config for --pegs")
+    ap.add_argument("--baseline-set", dest="baseline_settings", action="append", default=[],
+                    metavar="SECTION.KEY=VALUE", help="added to each recording's config for --baseline")
     ap.add_argument("--readme", type=Path)
+    ap.add_argument("--section", default="mujoco-cases", help="the README's markers to write between")
+    ap.add_argument("--labels", nargs=2, default=["before", "after"], metavar=("BEFORE", "AFTER"),
+                    help="the two sides' names in the table's header")
     ap.add_argument("--reuse", action="store_true", help="keep replays already in out_after / out_before")
     a = ap.parse_args()
     before, after, events = {}, {}, Counter()
     for folder in sorted(f for s in a.sets for f in s.iterdir() if (f / "truth.json").is_file()):
         kind = json.loads((folder / "truth.json").read_text())["kind"]
-        new = replay(a.pegs, folder, folder / "out_after", a.reuse)
-        old = replay(a.baseline, folder, folder / "out_before", a.reuse)
+        new = replay(a.pegs, folder, out_dir(folder, "after", a.settings), a.reuse, a.settings)
+        old = replay(a.baseline or a.pegs, folder, out_dir(folder, "before", a.baseline_settings), a.reuse,
+                     a.baseline_settings)
         for obj, e in new.get("tracking_error", {}).items():
             after[(kind, folder.name, obj)] = e
             before[(kind, folder.name, obj)] = old["tracking_error"][obj]
         events[kind] += len(new.get("track_events", []))
     kinds = [k for k in ORDER if any(key[0] == k for key in after)]
     kinds += sorted({key[0] for key in after} - set(kinds))
-    lines = ["| case | objects | before: mean | under 5 | p95 >= 10 | final | after: mean | under 5 | p95 >= 10 "
-             "| final | events after |",
+    was, now = a.labels
+    lines = [f"| case | objects | {was}: mean | under 5 | p95 >= 10 | final | {now}: mean | under 5 | p95 >= 10 "
+             f"| final | events {now} |",
              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for k in kinds + ["all"]:
         keys = [key for key in after if k in ("all", key[0])]
@@ -71,7 +115,7 @@ def main() -> None:
     text = "\n".join(lines) + "\n"
     print(text)
     if a.readme:
-        table.write_section(a.readme, "mujoco-cases", text)
+        table.write_section(a.readme, a.section, text)
 
 if __name__ == "__main__":
     main()
