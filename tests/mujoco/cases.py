@@ -34,23 +34,31 @@ PEAK_MM = 10.0  # issue 25's bar for the p95 (table.GOOD_MM for the mean)
 ORDER = ["control_still", "control_pushed", "hand", "slippery", "sticky", "tether", "heavy5"]
 
 
-def with_settings(config: str, settings: list[str]) -> str:
-    """`config` (a generated config.yaml: `pegs:` then `ros__parameters:`) with each
-    SECTION.KEY=VALUE added as a section of its own; a section the config has already is refused
-    rather than merged by hand."""
+def sections_of(settings: list[str]) -> dict[str, list[str]]:
+    """Each SECTION.KEY=VALUE as `KEY: VALUE` under its section; a malformed one stops the run
+    before any replay."""
     sections: dict[str, list[str]] = {}
     for setting in settings:
         key, eq, value = setting.partition("=")
         section, dot, name = key.partition(".")
         if not (eq and dot and section and name and value):
-            sys.exit(f"--set {setting!r}: expected SECTION.KEY=VALUE")
-        if f"\n    {section}:" in config:
-            sys.exit(f"--set {setting!r}: the recording's config has a {section} section already")
+            sys.exit(f"--set {setting!r}: expected SECTION.KEY=VALUE, e.g. correct.pose_search_ring=0.004")
         sections.setdefault(section, []).append(f"{name}: {value}")
-    added = "".join(f"    {section}: {{{', '.join(keys)}}}\n" for section, keys in sections.items())
+    return sections
+
+
+def with_settings(config: str, sections: dict[str, list[str]]) -> str:
+    """`config` (a generated config.yaml: `pegs:` then `ros__parameters:`) with each of `sections`
+    added as a section of its own; a section the config has already is refused rather than merged
+    by hand."""
+    for section in sections:
+        if f"\n    {section}:" in config:
+            sys.exit(f"--set {section}.*: the recording's config has a {section} section already; "
+                     "edit its config.yaml instead")
     head = "  ros__parameters:\n"
     if head not in config:
         sys.exit("config.yaml has no ros__parameters")
+    added = "".join(f"    {section}: {{{', '.join(keys)}}}\n" for section, keys in sections.items())
     return config.replace(head, head + added, 1)
 
 
@@ -63,7 +71,7 @@ def replay(pegs: str, folder: Path, out: Path, reuse: bool, settings: list[str])
         config = folder / "config.yaml"
         if settings:
             out.mkdir(parents=True, exist_ok=True)
-            (out / "config.yaml").write_text(with_settings(config.read_text(), settings))
+            (out / "config.yaml").write_text(with_settings(config.read_text(), sections_of(settings)))
             config = out / "config.yaml"
         result = subprocess.run([pegs, "replay", str(folder / "bag"), "--config", str(config),
                                  "--out", str(out)], capture_output=True, text=True)
@@ -92,6 +100,8 @@ def main() -> None:
                     help="the two sides' names in the table's header")
     ap.add_argument("--reuse", action="store_true", help="keep replays already in out_after / out_before")
     a = ap.parse_args()
+    for settings in (a.settings, a.baseline_settings):
+        sections_of(settings)
     before, after, events = {}, {}, Counter()
     for folder in sorted(f for s in a.sets for f in s.iterdir() if (f / "truth.json").is_file()):
         kind = json.loads((folder / "truth.json").read_text())["kind"]
