@@ -62,8 +62,13 @@ def with_settings(config: str, sections: dict[str, list[str]]) -> str:
     return config.replace(head, head + added, 1)
 
 
+def tagged(name: str, settings: list[str]) -> str:
+    """`name` with each setting appended, for the files and folders made with them."""
+    return "_".join([name] + settings).replace("/", "_")
+
+
 def out_dir(folder: Path, side: str, settings: list[str]) -> Path:
-    return folder / ("_".join([f"out_{side}"] + settings).replace("/", "_"))
+    return folder / tagged(f"out_{side}", settings)
 
 
 def replay(pegs: str, folder: Path, out: Path, reuse: bool, settings: list[str]) -> dict:

@@ -86,7 +86,7 @@ def main() -> None:
                          "config_<settings>.yaml, the report to diagnosis_<mode>_<settings>)")
     a = ap.parse_args()
     sections = cases.sections_of(a.set)
-    mode = "_".join(["robot_contact" if a.robot_contact else "free"] + a.set).replace("/", "_")
+    mode = cases.tagged("robot_contact" if a.robot_contact else "free", a.set)
     lines = ["| recording | shape | concealed | named | estimate (truth) | error | evidence on the concealed object | "
              "1 s open loop before -> after (mm) | pass | minutes |",
              "| --- | --- | --- | --- | --- | ---: | --- | --- | --- | ---: |"]
@@ -102,7 +102,7 @@ def main() -> None:
             diag = folder / f"diagnosis_{mode}"
             config = folder / "config.yaml"
             if a.set:
-                config = folder / f"config_{'_'.join(a.set).replace('/', '_')}.yaml"
+                config = folder / f"{cases.tagged('config', a.set)}.yaml"
                 config.write_text(cases.with_settings((folder / "config.yaml").read_text(), sections))
             command = [a.pegs, "diagnose", str(folder / "bag"), "--config", str(config),
                        "--out", str(diag)] + (["--robot-contact"] if a.robot_contact else [])
@@ -141,7 +141,7 @@ def main() -> None:
             f"{''.join(f' --set {x}' for x in a.set)}`.\n\n"
             + "\n".join(lines) + "\n")
     a.out.mkdir(parents=True, exist_ok=True)
-    name = "_".join(["diagnosis"] + (["robot_contact"] if a.robot_contact else []) + a.set).replace("/", "_")
+    name = cases.tagged("diagnosis_robot_contact" if a.robot_contact else "diagnosis", a.set)
     (a.out / f"{name}.md").write_text(text)
     print(text)
 
