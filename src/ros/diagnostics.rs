@@ -208,7 +208,8 @@ fn camera_statuses(s: &Shared, tick: &TickInputs, window: &Window) -> Vec<Diagno
             Some(_) => (DiagnosticStatus::OK, "ok".into()),
         };
         let mean_used = used.iter().sum::<f64>() / used.len().max(1) as f64;
-        let max_used = used.iter().copied().fold(0.0, f64::max);
+        // Ages below zero are images stamped ahead of the tick (within `max_image_age`, used too).
+        let max_used = used.iter().copied().reduce(f64::max).unwrap_or(0.0);
         let values = vec![
             kv("age_s", age.map_or("none".into(), |a| format!("{a:.3}"))),
             kv("age_used_ms_mean", format!("{:.1}", mean_used * 1e3)),

@@ -391,9 +391,12 @@ def test_a_camera_that_stops_is_reported_and_tracking_continues(main_run):
     agreement = values["silhouette_agreement"]
     assert level(box) == 0 and float(agreement) > 0.6, (box.message, agreement)
     assert values["off_table"] == "false", values
-    # The ages of the images the ticks used are reported, and none is past the limit (70 ms).
+    # The ages of the images the ticks used are reported, and none is past the limit (70 ms) either
+    # way: an image stamped up to the limit ahead of a tick is used too (under load the player's
+    # images can run a millisecond ahead of the node's ticks).
     ages = {kv.key: kv.value for kv in status["pegs: camera cam0"].values}
-    assert int(ages["ticks_used"]) > 0 and 0 < float(ages["age_used_ms_max"]) <= 70.0, ages
+    mean, oldest = float(ages["age_used_ms_mean"]), float(ages["age_used_ms_max"])
+    assert int(ages["ticks_used"]) > 0 and -70.0 <= mean <= oldest <= 70.0, ages
     # Poses kept coming after cam2 stopped (checked against the truth in the tracking test).
     player, start = main_run["player"], main_run["start"]
     after = [m for _, m in main_run["recorder"].got["objects"] if player.recording_time(stamp_of(m)) > 3.0]
