@@ -87,6 +87,13 @@ pub struct ObjectReport {
     pub relocated: Vec<crate::trace::Jump>,
     /// Short-horizon error a prediction had to exceed to count as a mismatch, mm.
     pub locate_threshold_mm: f32,
+    /// Ticks either side of a state over which the open-loop predictions' start velocities were
+    /// fitted to the tracked positions (`trace::Trace::velocity_spans`).
+    pub velocity_span: usize,
+    /// How far the object's track strays from a smooth path while it moves (`trace::Trace::
+    /// roughness`), mm; above `trace::ROUGH_TRACK_M` the velocities are fitted over the wider
+    /// span. None: it never moved.
+    pub track_roughness_mm: Option<f32>,
     /// For an object with no effect of its own: the effects named on other objects that explain
     /// its `mismatch` windows (e.g. "mass_error of box").
     pub explained_by: Option<String>,
@@ -179,6 +186,7 @@ impl Report {
         for o in &self.objects {
             let _ = writeln!(md, "## {}\n", o.object);
             relocated_section(&mut md, o);
+            velocity_section(&mut md, o);
             locate_section(&mut md, o);
             driven_section(&mut md, o);
             name_section(&mut md, o);
@@ -211,6 +219,22 @@ fn relocated_section(md: &mut String, o: &ObjectReport) {
         md,
         "**Moved by something outside the model.** The tracker lost the object and found it in the images away from where the model had it, at {}; predictions across these jumps are left out of locating and fitting.\n",
         said.join(", ")
+    );
+}
+
+/// Start velocities fitted over the wider span: said, since they blur kinks in the motion.
+fn velocity_section(md: &mut String, o: &ObjectReport) {
+    let Some(rough) = o.track_roughness_mm else {
+        return;
+    };
+    if o.velocity_span != crate::trace::ROUGH_VELOCITY_SPAN {
+        return;
+    }
+    let _ = writeln!(
+        md,
+        "**Start velocities.** The track rings about the object's motion ({rough:.1} mm from a smooth path, median while it moves; smooth below {:.1} mm): open-loop predictions start from velocities fitted over {} ticks each way, which damps the ringing and blurs sudden changes of the motion over as many ticks.\n",
+        crate::trace::ROUGH_TRACK_M * 1e3,
+        o.velocity_span
     );
 }
 

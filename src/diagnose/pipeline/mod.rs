@@ -51,11 +51,13 @@ impl Default for DiagnoseOptions {
 }
 
 /// What every object's study shares: the horizon of the open-loop predictions (ticks), the
-/// recording's first time and the options.
+/// recording's first time, the options and the spans over which the first replay's tracks give
+/// the predictions' start velocities (`Trace::velocity_spans`), kept for every later replay.
 struct Plan {
     horizon: usize,
     t_first: f64,
     opts: DiagnoseOptions,
+    velocity_spans: Option<Vec<usize>>,
 }
 
 impl Plan {
@@ -64,6 +66,7 @@ impl Plan {
             horizon: (opts.horizon / trace.dt()).round().max(1.0) as usize,
             t_first: trace.states.first().map_or(0.0, |s| s.time),
             opts,
+            velocity_spans: Some(trace.velocity_spans()),
         }
     }
 
@@ -81,7 +84,11 @@ fn traced_replay(recording: &Path, config: &Config, out: &Path, plan: &Plan) -> 
         capture: true,
         ..Default::default()
     };
-    replay::run(recording, config, out, opts)
+    let mut run = replay::run(recording, config, out, opts)?;
+    if let (Some(trace), Some(spans)) = (run.trace.as_mut(), &plan.velocity_spans) {
+        trace.keep_velocity_spans(spans.clone());
+    }
+    Ok(run)
 }
 
 /// Replay `recording` with `config`, find what physics the model misses and write `out/report.md`,
@@ -101,6 +108,7 @@ pub fn diagnose(
         horizon: 1,
         t_first: 0.0,
         opts,
+        velocity_spans: None,
     };
     let before = traced_replay(recording, config, &out.join("before"), &quiet)?;
     let trace = before.trace.as_ref().context("replay kept no trace")?;

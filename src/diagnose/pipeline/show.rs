@@ -70,9 +70,14 @@ pub fn report(
             .filter(|j| j.shape == study.shape)
             .cloned()
             .collect();
+        let velocity = (
+            trace.velocity_spans()[study.shape as usize],
+            trace.roughness(study.shape).map(|r| (r * 1e3) as f32),
+        );
         objects.push(object_report(
             study,
             relocated,
+            velocity,
             outcome_before,
             outcome_after,
             folds,
@@ -161,6 +166,7 @@ fn outcome(predictions: &[Prediction], samples: &[Sample], run: &Metrics, object
 fn object_report(
     mut study: Study,
     relocated: Vec<crate::trace::Jump>,
+    (velocity_span, track_roughness_mm): (usize, Option<f32>),
     before: Outcome,
     after: Outcome,
     folds: Vec<[f64; 2]>,
@@ -228,6 +234,8 @@ fn object_report(
         object: study.name,
         verdict,
         locate_threshold_mm: study.located.threshold * 1e3,
+        velocity_span,
+        track_roughness_mm,
         // Deviations no effect explains are listed apart: they are not missing physics.
         unexplained: study
             .located

@@ -613,6 +613,7 @@ mod tests {
             horizon: 30,
             t_first: 0.0,
             opts: Default::default(),
+            velocity_spans: None,
         };
         let mut passed = fit("constant_force", &[0.05; 9]);
         passed.effect_term = Some(tilt);
