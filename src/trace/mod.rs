@@ -281,9 +281,12 @@ impl Trace {
                     self.base.shapes.kind[object as usize],
                     ShapeKind::Rigid | ShapeKind::Rope
                 );
-                match self.roughness(object) {
-                    Some(r) if tracked && r > ROUGH_TRACK_M => ROUGH_VELOCITY_SPAN,
-                    _ => VELOCITY_SPAN,
+                // Robot links' roughness is never computed: it decides nothing.
+                let rings = tracked && self.roughness(object).is_some_and(|r| r > ROUGH_TRACK_M);
+                if rings {
+                    ROUGH_VELOCITY_SPAN
+                } else {
+                    VELOCITY_SPAN
                 }
             })
             .collect()
