@@ -51,7 +51,7 @@ pub fn collision_corrections(
                         let share = wi / (wi + inv_mass[j]);
                         let rel = (pos[i] - prev[i]) - (pos[j] - prev[j]);
                         let tangential = rel - rel.dot(normal) * normal;
-                        let (slip, _) = friction(tangential, depth, mu_static, mu_kinetic);
+                        let (slip, _) = friction(tangential, depth, 1.0, mu_static, mu_kinetic);
                         sum += share * (depth * normal + slip);
                         n_contacts += 1;
                         sch[k] |= inv_mass[j] <= 0.0;

@@ -86,6 +86,8 @@ pub struct GroundConfig {
     pub height: f32,
     pub static_friction: f32,
     pub kinetic_friction: f32,
+    /// Where a rigid object bears on the plane, hence how much friction resists its turning.
+    pub support: GroundSupport,
 }
 
 impl Default for GroundConfig {
@@ -96,8 +98,25 @@ impl Default for GroundConfig {
             height: 0.0,
             static_friction: 0.5,
             kinetic_friction: 0.4,
+            support: GroundSupport::Face,
         }
     }
+}
+
+/// Where a rigid object resting on the ground bears its weight. A rigid solid on a rigid plane is
+/// statically indeterminate, so this is a modelling choice; it leaves sliding friction as it is
+/// and sets the friction torque against turning (for a long bar, corners give about twice the
+/// face's).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GroundSupport {
+    /// Every particle of the lowest layer bears alike: the weight spread over the face (the
+    /// default, which the tracker is tuned with).
+    Face,
+    /// Only the vertices of the footprint's support polygon bear (a box's four corners), as a
+    /// rigid box on a rigid plane does in MuJoCo; the rest of the face stands `SUPPORT_RELIEF`
+    /// clear (`ground::bearing_loads`).
+    Corners,
 }
 
 /// Particle-particle contacts between different shapes.

@@ -17,7 +17,7 @@ mod ground;
 mod shape_matching;
 mod spatial_hash;
 
-pub use config::{CollisionConfig, GroundConfig, GroundPins, PhysicsConfig};
+pub use config::{CollisionConfig, GroundConfig, GroundPins, GroundSupport, PhysicsConfig};
 pub use effects::Effect;
 pub use ground::Plane;
 
@@ -89,6 +89,12 @@ pub struct Solver {
     bound_to: (usize, usize),
     inv_mass: Vec<f32>,
     shape_mass: Vec<f32>,
+    /// Per particle: how close (m) to the plane its centre comes before it touches (its radius,
+    /// less `SUPPORT_RELIEF` where it does not bear on `Corners` support).
+    ground_radius: Vec<f32>,
+    /// Per particle: how many particles' weight it bears on the ground (1, more at the corners
+    /// that bear a shape on `Corners` support).
+    ground_load: Vec<f32>,
     shape_velocity: Vec<Vec3>,
     /// Per shape: ground restitution, and the normal speed before this substep's contacts.
     restitution: Vec<f32>,
@@ -126,6 +132,8 @@ impl Solver {
             bound_to: (usize::MAX, usize::MAX),
             inv_mass: Vec::new(),
             shape_mass: Vec::new(),
+            ground_radius: Vec::new(),
+            ground_load: Vec::new(),
             pinned: Vec::new(),
             grip: Vec::new(),
             shape_velocity: Vec::new(),
@@ -181,6 +189,7 @@ impl Solver {
                     .sum()
             })
             .collect();
+        (self.ground_radius, self.ground_load) = self.ground_footing(world);
         self.shape_velocity = vec![Vec3::ZERO; ns];
         self.restitution = self.effects.restitution(ns);
         self.normal_speed = vec![0.0; ns];
@@ -194,6 +203,33 @@ impl Solver {
         self.stats.ground_contacts = vec![0; ns];
         self.bound_to = (n, ns);
         Ok(())
+    }
+
+    /// Each particle's radius towards the ground and the particles' weight it bears there (at
+    /// least 1): on `Corners` support the corners of a rigid shape (found in its rest frame, with
+    /// the ground's normal as it stands at binding) bear its lowest layer's weight, and the rest
+    /// reach `SUPPORT_RELIEF` less far.
+    fn ground_footing(&self, world: &World) -> (Vec<f32>, Vec<f32>) {
+        let p = &world.particles;
+        let (mut radius, mut load) = (p.radius.clone(), vec![1.0; p.len()]);
+        if self.config.ground.support == GroundSupport::Face {
+            return (radius, load);
+        }
+        let shapes = &world.shapes;
+        for s in (0..shapes.len()).filter(|&s| shapes.kind[s] == ShapeKind::Rigid) {
+            let range = shapes.range(s as ShapeId);
+            let down = -(shapes.pose[s].rotation.inverse() * self.config.ground.normal);
+            let bears =
+                ground::bearing_loads(&p.rest[range.clone()], &p.radius[range.clone()], down);
+            for (i, bears) in range.zip(bears) {
+                if bears > 0.0 {
+                    load[i] = bears.max(1.0);
+                } else {
+                    radius[i] -= ground::SUPPORT_RELIEF;
+                }
+            }
+        }
+        (radius, load)
     }
 
     /// For the coming tick, `shape` moves no faster than `SETTLING_SPEED`: it was put where it may
@@ -406,7 +442,8 @@ impl Solver {
                 ground::project_ground(
                     &mut p.position,
                     &self.prev,
-                    &p.radius,
+                    &self.ground_radius,
+                    &self.ground_load,
                     &self.inv_mass,
                     plane,
                     &|x| effects.ground_friction(x, base),
@@ -416,7 +453,8 @@ impl Solver {
                 ground::project_ground(
                     &mut p.position,
                     &self.prev,
-                    &p.radius,
+                    &self.ground_radius,
+                    &self.ground_load,
                     &self.inv_mass,
                     plane,
                     &|_| base,
