@@ -1066,6 +1066,14 @@ fn stepping_is_deterministic() {
     );
 }
 
+/// Box half-extents (m) and spin rates (rad/s) the spin laws are checked on: a 19 cm bar fast and
+/// slow, and a 12 x 6 cm box.
+const SPINS: [(Vec3, f32); 3] = [
+    (Vec3::new(0.095, 0.0175, 0.025), 6.0),
+    (Vec3::new(0.06, 0.03, 0.025), 6.0),
+    (Vec3::new(0.095, 0.0175, 0.025), 3.0),
+];
+
 /// The angle (rad) a shape resting on the ground turns before friction stops it, spun about the
 /// vertical through its centroid at `omega0` rad/s; with the mean and the largest horizontal
 /// distance of its bottom-layer particles from the centroid (the largest: its corners') and its
@@ -1146,11 +1154,7 @@ fn spinning_bar_stops_after_the_turn_its_even_support_predicts() {
         ..undamped()
     };
     let mu = config.ground.kinetic_friction;
-    for (half, omega0) in [
-        (Vec3::new(0.095, 0.0175, 0.025), 6.0f32),
-        (Vec3::new(0.06, 0.03, 0.025), 6.0),
-        (Vec3::new(0.095, 0.0175, 0.025), 3.0),
-    ] {
+    for (half, omega0) in SPINS {
         let (turned, mean_radius, _, mean_square) = spin_angle(half, omega0, config.clone());
         let even = omega0 * omega0 * mean_square / (2.0 * mu * G * mean_radius);
         let corners = omega0 * omega0 * mean_square / (2.0 * mu * G * half.truncate().length());
@@ -1197,11 +1201,7 @@ fn a_box_on_its_corners_stops_a_spin_in_the_turn_its_corners_predict_and_slides_
         ..face.clone()
     };
     let mu = face.ground.kinetic_friction;
-    for (half, omega0) in [
-        (Vec3::new(0.095, 0.0175, 0.025), 6.0f32),
-        (Vec3::new(0.06, 0.03, 0.025), 6.0),
-        (Vec3::new(0.095, 0.0175, 0.025), 3.0),
-    ] {
+    for (half, omega0) in SPINS {
         let (turned, _, corner, mean_square) = spin_angle(half, omega0, corners.clone());
         let want = omega0 * omega0 * mean_square / (2.0 * mu * G * corner);
         let (on_face, ..) = spin_angle(half, omega0, face.clone());

@@ -1,6 +1,6 @@
 //! Ground plane: non-penetration with static and kinetic Coulomb friction, projected per particle
-//! (each particle touches the plane through exactly one constraint, so no averaging is needed).
-
+//! (each particle touches the plane through exactly one constraint, so no averaging is needed),
+//! and where a rigid shape bears on it (`Footing`: its whole lowest layer, or its corners).
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -46,16 +46,23 @@ pub enum Grip {
     Slips,
 }
 
+/// How each particle meets the ground: how close (m) its centre comes before it touches, and how
+/// many particles' weight it bears there (1, more at the corners that bear a shape on `Corners`
+/// support; see `friction`).
+#[derive(Clone, Debug, Default)]
+pub struct Footing {
+    pub radius: Vec<f32>,
+    pub load: Vec<f32>,
+}
+
 /// Push dynamic particles out of the plane and apply friction against their substep-start
 /// positions `prev`. `coefficients(p)` gives (static, kinetic) friction at a contact point; a
-/// particle touches within its `radius` and carries `load` particles' weight (see `friction`).
+/// particle touches and bears as its `footing` says.
 /// Each touching particle's `grip` says whether static friction holds it or it slides.
-#[allow(clippy::too_many_arguments)]
 pub fn project_ground(
     pos: &mut [Vec3],
     prev: &[Vec3],
-    radius: &[f32],
-    load: &[f32],
+    footing: &Footing,
     inv_mass: &[f32],
     plane: Plane,
     coefficients: &(dyn Fn(Vec3) -> (f32, f32) + Sync),
@@ -69,7 +76,7 @@ pub fn project_ground(
             if inv_mass[i] <= 0.0 {
                 return;
             }
-            let depth = radius[i] - (plane.normal.dot(*x) - plane.height);
+            let depth = footing.radius[i] - (plane.normal.dot(*x) - plane.height);
             if depth <= 0.0 {
                 return;
             }
@@ -77,7 +84,7 @@ pub fn project_ground(
             let moved = *x - prev[i];
             let tangential = moved - moved.dot(plane.normal) * plane.normal;
             let (mu_s, mu_k) = coefficients(*x);
-            let (correction, sticks) = friction(tangential, depth, load[i], mu_s, mu_k);
+            let (correction, sticks) = friction(tangential, depth, footing.load[i], mu_s, mu_k);
             *x += correction;
             *grip = if sticks { Grip::Sticks } else { Grip::Slips };
         });
@@ -177,11 +184,11 @@ mod tests {
     #[test]
     fn a_footprint_bears_on_its_support_polygons_corners_whatever_its_heading() {
         use crate::world::{box_lattice, cylinder_lattice, t_block_lattice};
+        let lowest = |rest: &[Vec3]| rest.iter().map(|x| x.z).fold(f32::MAX, f32::min);
         let bearing = |rest: &[Vec3]| -> Vec<Vec3> {
             let loads = bearing_loads(rest, &vec![0.005; rest.len()], -Vec3::Z);
             // The bearing points carry the whole bottom layer's weight between them.
-            let lowest = rest.iter().map(|x| x.z).fold(f32::MAX, f32::min);
-            let bottom = rest.iter().filter(|x| x.z < lowest + 0.0025).count() as f32;
+            let bottom = rest.iter().filter(|x| x.z < lowest(rest) + 0.0025).count() as f32;
             let carried: f32 = loads.iter().sum();
             assert!(
                 (carried - bottom).abs() < 1e-3,
@@ -192,7 +199,6 @@ mod tests {
                 .map(|i| rest[i])
                 .collect()
         };
-        let lowest = |rest: &[Vec3]| rest.iter().map(|x| x.z).fold(f32::MAX, f32::min);
         // A bar, turned to any heading in its rest frame: its four bottom corners, nothing else.
         for yaw in [0.0f32, 0.2, std::f32::consts::FRAC_PI_4, 1.3] {
             let turn = glam::Quat::from_rotation_z(yaw);
@@ -246,13 +252,16 @@ mod tests {
             height: 0.02,
         };
         let start = Vec3::new(0.3, 0.1, 0.0);
+        let one_particle = Footing {
+            radius: vec![0.01],
+            load: vec![1.0],
+        };
         let mut pos = vec![start];
         let prev = vec![start];
         project_ground(
             &mut pos,
             &prev,
-            &[0.01],
-            &[1.0],
+            &one_particle,
             &[1.0],
             plane,
             &|_| (0.0, 0.0),
@@ -267,8 +276,7 @@ mod tests {
         project_ground(
             &mut pinned,
             &prev,
-            &[0.01],
-            &[1.0],
+            &one_particle,
             &[0.0],
             plane,
             &|_| (0.0, 0.0),

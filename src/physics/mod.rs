@@ -89,12 +89,9 @@ pub struct Solver {
     bound_to: (usize, usize),
     inv_mass: Vec<f32>,
     shape_mass: Vec<f32>,
-    /// Per particle: how close (m) to the plane its centre comes before it touches (its radius,
-    /// less `SUPPORT_RELIEF` where it does not bear on `Corners` support).
-    ground_radius: Vec<f32>,
-    /// Per particle: how many particles' weight it bears on the ground (1, more at the corners
-    /// that bear a shape on `Corners` support).
-    ground_load: Vec<f32>,
+    /// How each particle meets the ground (its radius, less `SUPPORT_RELIEF` where it does not
+    /// bear on `Corners` support; the weight it bears).
+    footing: ground::Footing,
     shape_velocity: Vec<Vec3>,
     /// Per shape: ground restitution, and the normal speed before this substep's contacts.
     restitution: Vec<f32>,
@@ -132,8 +129,7 @@ impl Solver {
             bound_to: (usize::MAX, usize::MAX),
             inv_mass: Vec::new(),
             shape_mass: Vec::new(),
-            ground_radius: Vec::new(),
-            ground_load: Vec::new(),
+            footing: ground::Footing::default(),
             pinned: Vec::new(),
             grip: Vec::new(),
             shape_velocity: Vec::new(),
@@ -189,7 +185,7 @@ impl Solver {
                     .sum()
             })
             .collect();
-        (self.ground_radius, self.ground_load) = self.ground_footing(world);
+        self.footing = self.ground_footing(world);
         self.shape_velocity = vec![Vec3::ZERO; ns];
         self.restitution = self.effects.restitution(ns);
         self.normal_speed = vec![0.0; ns];
@@ -209,11 +205,11 @@ impl Solver {
     /// least 1): on `Corners` support the corners of a rigid shape (found in its rest frame, with
     /// the ground's normal as it stands at binding) bear its lowest layer's weight, and the rest
     /// reach `SUPPORT_RELIEF` less far.
-    fn ground_footing(&self, world: &World) -> (Vec<f32>, Vec<f32>) {
+    fn ground_footing(&self, world: &World) -> ground::Footing {
         let p = &world.particles;
         let (mut radius, mut load) = (p.radius.clone(), vec![1.0; p.len()]);
         if self.config.ground.support == GroundSupport::Face {
-            return (radius, load);
+            return ground::Footing { radius, load };
         }
         let shapes = &world.shapes;
         for s in (0..shapes.len()).filter(|&s| shapes.kind[s] == ShapeKind::Rigid) {
@@ -229,7 +225,7 @@ impl Solver {
                 }
             }
         }
-        (radius, load)
+        ground::Footing { radius, load }
     }
 
     /// For the coming tick, `shape` moves no faster than `SETTLING_SPEED`: it was put where it may
@@ -442,8 +438,7 @@ impl Solver {
                 ground::project_ground(
                     &mut p.position,
                     &self.prev,
-                    &self.ground_radius,
-                    &self.ground_load,
+                    &self.footing,
                     &self.inv_mass,
                     plane,
                     &|x| effects.ground_friction(x, base),
@@ -453,8 +448,7 @@ impl Solver {
                 ground::project_ground(
                     &mut p.position,
                     &self.prev,
-                    &self.ground_radius,
-                    &self.ground_load,
+                    &self.footing,
                     &self.inv_mass,
                     plane,
                     &|_| base,
