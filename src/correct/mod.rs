@@ -11,6 +11,7 @@
 pub mod adam;
 pub mod agreement;
 pub mod friction;
+pub mod nudge;
 pub mod plant;
 pub mod pull;
 pub mod relocate;
@@ -127,6 +128,15 @@ pub struct CorrectConfig {
     /// pulled a little and one visibly off in full. At or above `pose_search_below`: in full
     /// wherever the search runs.
     pub pose_pull_full_below: f32,
+    /// Share (0-1) of a convincing found pose's offset beyond the dead zone that the tracked
+    /// state takes at once each tick (`nudge`: the object's particles moved rigidly towards it,
+    /// in proportion to `pull_share`), before the pull acts on what is left. 0: the pull alone.
+    pub pose_nudge: f32,
+    /// Share of the nudge's rate (its move / dt) added to the object's velocity.
+    pub pose_nudge_velocity: f32,
+    /// The nudge takes only the offset beyond this (m, at the furthest particle): a found pose
+    /// within it is left to the pull, whose force the model's friction filters.
+    pub pose_nudge_beyond: f32,
     /// Images older than this (s) at a tick are not used. An image shows the objects where they
     /// were when it was taken, and the tick compares it with the world at the tick's end: at
     /// 0.2 m/s every 10 ms of age pulls the objects 2 mm back. About two ticks by default (a
@@ -350,6 +360,9 @@ impl Default for CorrectConfig {
             // and the concealed recordings moved by at most 0.24 mm (the hidden box, 10.65 ->
             // 10.89), the real T-block's IoU by at most 0.004.
             pose_dead_zone: 0.003,
+            pose_nudge: 0.0,
+            pose_nudge_velocity: 0.0,
+            pose_nudge_beyond: 0.003,
             max_image_age: 0.07,
             use_roi: true,
             roi_margin_px: 12.0,
@@ -383,6 +396,9 @@ impl CorrectConfig {
             ("pose_dead_zone", self.pose_dead_zone),
             ("pose_search_below", self.pose_search_below),
             ("pose_pull_full_below", self.pose_pull_full_below),
+            ("pose_nudge", self.pose_nudge),
+            ("pose_nudge_velocity", self.pose_nudge_velocity),
+            ("pose_nudge_beyond", self.pose_nudge_beyond),
             ("roi_margin_px", self.roi_margin_px),
             ("occluder_threshold", self.occluder_threshold),
             ("friction_compensation", self.friction_compensation),
@@ -472,6 +488,9 @@ pub struct Corrector {
     displacements: Vec<DisplacementState>,
     /// Each particle's pose pull across ticks (`PullState`).
     pulls: Vec<PullState>,
+    /// Per shape: whether the predict step before this correction had it touch the robot or
+    /// another object (`note_contacts`); such an object is not nudged.
+    in_contact: Vec<bool>,
     /// Each particle's push and turn along the table, averaged over ticks (`compensate_friction`).
     pushes: FrictionMemory,
     /// Each shape's silhouette agreement, averaged over ticks (`AGREEMENT_SMOOTHING`).
@@ -502,6 +521,7 @@ impl Corrector {
             adam: [means, a.clone(), a.clone(), a],
             displacements: Vec::new(),
             pulls: Vec::new(),
+            in_contact: Vec::new(),
             pushes: FrictionMemory::default(),
             agreement_avg: Vec::new(),
             turn: 0,
@@ -522,6 +542,15 @@ impl Corrector {
     pub fn with_plant(mut self, plant: Plant) -> Self {
         self.plant = plant;
         self
+    }
+
+    /// The contacts of the predict step before this tick's correction, per shape: an object the
+    /// model pushes with the robot or another object moves as the model's contact says, and a
+    /// nudge would put it into what pushes it (`nudge`).
+    pub fn note_contacts(&mut self, touched: &[crate::physics::Touched]) {
+        self.in_contact.clear();
+        self.in_contact
+            .extend(touched.iter().map(|t| t.kinematic || t.dynamic));
     }
 
     /// The gain (1/s^2) the visual forces take on this model (`plant::loop_gains`).
@@ -790,10 +819,28 @@ impl Corrector {
                 .collect();
             let poses = self.local_poses(world, &full, c.pose_search_radius, &wanted)?;
             lap(&mut stats, "pose_search", &mut clock);
+            let shares: Vec<f32> = self
+                .agreement_avg
+                .iter()
+                .map(|a| pull_share(*a, &c))
+                .collect();
+            // Where the model's own contact pushes an object, it moves as the contact says: a
+            // nudge there puts it into its pusher.
+            let free: Vec<_> = poses
+                .iter()
+                .enumerate()
+                .map(|(s, p)| match self.in_contact.get(s) {
+                    Some(true) => None,
+                    _ => p.filter(pull::convincing),
+                })
+                .collect();
+            for n in nudge::nudge_towards_found(world, &free, &shares, &c, dt) {
+                stats.force[n.shape as usize] += n.force;
+            }
             let mut pulls = pose_pulls(world, &poses, c.pose_dead_zone);
             for (d, shape) in pulls.iter_mut().zip(&world.particles.shape) {
                 if let Some(d) = d {
-                    *d *= pull_share(self.agreement_avg[*shape as usize], &c);
+                    *d *= shares[*shape as usize];
                 }
             }
             self.pulls.resize(pulls.len(), PullState::default());

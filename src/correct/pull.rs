@@ -20,7 +20,7 @@ const POSE_MARGIN: f32 = 0.03;
 
 /// Whether a better pose found nearby is worth pulling towards: it scores at least
 /// `POSE_MIN_SCORE`, and `POSE_MARGIN` more than where the model has the object.
-fn convincing(found: &relocate::Found) -> bool {
+pub fn convincing(found: &relocate::Found) -> bool {
     found.score >= POSE_MIN_SCORE && found.score >= found.score_here + POSE_MARGIN
 }
 

@@ -149,6 +149,7 @@ impl Tracker {
             let clock = Instant::now();
             let views = inputs.views();
             let dt = self.solver.config().dt;
+            corrector.note_contacts(&self.solver.stats.touched);
             let mut stats = corrector.correct(&mut self.scene.world, &views, dt)?;
             let time = self.scene.world.time;
             report.track_events = self.health.update(time, &stats.agreement);

@@ -1,0 +1,207 @@
+//! The pose nudge: where the local search (`relocate`) finds an object convincingly off the
+//! model's pose, part of that offset (beyond `pose_nudge_beyond`) is taken into the tracked state at
+//! once, the object's particles moved rigidly towards the found pose (`nudge_towards_found`), and
+//! part of the move's rate into their velocity. A state update, like a filter's, where the pose
+//! pull (`pull`) is a force: a force the model's friction or a missing spring holds back moves
+//! the object only once the pull has grown past them, so an object pushed by something the model
+//! lacks lagged behind by ticks and then overshot; a nudge is not held back.
+//!
+//! This module owns moving tracked objects towards found poses and what such a move is worth
+//! as a force (for the residuals); it never searches (`relocate`) and never decides whether a
+//! found pose is convincing (`pull`).
+
+use super::{CorrectConfig, relocate};
+use crate::math::Pose;
+use crate::world::{ShapeId, ShapeKind, World};
+use glam::Vec3;
+
+/// One object's nudge this tick: the shape, the rigid motion its particles took (world frame),
+/// and the force (N, at its centre of mass) that would have moved it as far in one tick from
+/// the velocity it kept.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Nudge {
+    pub shape: ShapeId,
+    pub motion: Pose,
+    pub force: Vec3,
+    /// The share of the offset taken (0-1).
+    pub step: f32,
+}
+
+/// Move each rigid object the search found convincingly off (`found`, already filtered: `None`
+/// for an object not to be nudged; `share` per shape from `pull_share`) by `pose_nudge x share`
+/// of the way to the found pose beyond `pose_nudge_beyond` (at its furthest particle, as
+/// `pose_pulls` measures its dead zone), and add `pose_nudge_velocity` times the move's rate to
+/// its particles' velocities. Returns the nudges made (none within `pose_nudge_beyond`).
+pub fn nudge_towards_found(
+    world: &mut World,
+    found: &[Option<relocate::Found>],
+    share: &[f32],
+    c: &CorrectConfig,
+    dt: f32,
+) -> Vec<Nudge> {
+    let mut nudges = Vec::new();
+    if c.pose_nudge <= 0.0 {
+        return nudges;
+    }
+    for (s, found) in found.iter().enumerate() {
+        let Some(found) = found else {
+            continue;
+        };
+        if world.shapes.kind[s] != ShapeKind::Rigid {
+            continue;
+        }
+        let here = world.shapes.pose[s];
+        let range = world.shapes.range(s as ShapeId);
+        let furthest = range
+            .clone()
+            .map(|i| {
+                let rest = world.particles.rest[i];
+                (found.pose.transform_point(rest) - here.transform_point(rest)).length()
+            })
+            .fold(0.0, f32::max);
+        if furthest <= c.pose_nudge_beyond {
+            continue;
+        }
+        let keep = 1.0 - c.pose_nudge_beyond / furthest;
+        let step = (c.pose_nudge * share.get(s).copied().unwrap_or(0.0) * keep).clamp(0.0, 1.0);
+        if step <= 0.0 {
+            continue;
+        }
+        let to = here.interpolate(&found.pose, step);
+        let motion = to.mul(&here.inverse());
+        let centre = world.shape_centroid(s as ShapeId);
+        let moved = motion.transform_point(centre) - centre;
+        let mut mass = 0.0;
+        for i in range {
+            let p = world.particles.position[i];
+            let q = motion.transform_point(p);
+            world.particles.position[i] = q;
+            world.particles.velocity[i] += c.pose_nudge_velocity * (q - p) / dt;
+            mass += world.particles.mass(i);
+        }
+        world.shapes.pose[s] = to;
+        nudges.push(Nudge {
+            shape: s as ShapeId,
+            motion,
+            force: mass * moved / (dt * dt),
+            step,
+        });
+    }
+    nudges
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::world::{WorldBuilder, box_lattice};
+    use glam::Quat;
+
+    /// A 10 x 5 x 4 cm box of 1 g particles resting on z = 0.
+    fn one_box() -> World {
+        let mut b = WorldBuilder::new();
+        b.add_rigid(
+            "box",
+            &box_lattice(Vec3::new(0.05, 0.025, 0.02), 0.01),
+            0.005,
+            0.001,
+            Pose::from_translation(Vec3::new(0.0, 0.0, 0.025)),
+            Vec3::ONE,
+        );
+        b.build()
+    }
+
+    fn found_at(pose: Pose) -> relocate::Found {
+        relocate::Found {
+            pose,
+            score: 0.9,
+            score_here: 0.5,
+        }
+    }
+
+    #[test]
+    fn a_nudge_moves_a_rigid_object_rigidly_its_share_of_the_way_beyond_what_it_leaves_to_the_pull()
+    {
+        let mut world = one_box();
+        let here = world.shapes.pose[0];
+        let target = Pose::new(
+            here.translation + Vec3::new(0.02, 0.0, 0.0),
+            Quat::from_rotation_z(0.1) * here.rotation,
+        );
+        let c = CorrectConfig {
+            pose_nudge: 0.5,
+            pose_nudge_velocity: 0.0,
+            ..CorrectConfig::default()
+        };
+        let dt = 1.0 / 30.0;
+        let before: Vec<Vec3> = world.particles.position.clone();
+        let nudges = nudge_towards_found(&mut world, &[Some(found_at(target))], &[1.0], &c, dt);
+        assert_eq!(nudges.len(), 1);
+        // Rigid: every pair of particles keeps its distance.
+        let p = &world.particles.position;
+        for (i, j) in [(0, p.len() - 1), (1, p.len() / 2)] {
+            let (a, b) = ((before[i] - before[j]).length(), (p[i] - p[j]).length());
+            assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        }
+        // The share of the way beyond `pose_nudge_beyond`: the furthest particle moves
+        // 0.5 x (offset - pose_nudge_beyond).
+        let furthest_offset = world
+            .shapes
+            .range(0)
+            .map(|i| {
+                let r = world.particles.rest[i];
+                (target.transform_point(r) - here.transform_point(r)).length()
+            })
+            .fold(0.0, f32::max);
+        let moved = (0..p.len())
+            .map(|i| (p[i] - before[i]).length())
+            .fold(0.0, f32::max);
+        let expected = 0.5 * (furthest_offset - c.pose_nudge_beyond);
+        assert!(
+            (moved - expected).abs() < 0.1 * expected,
+            "{moved} vs {expected}"
+        );
+        // Velocities untouched without a velocity share; the pose follows the particles.
+        assert!(world.particles.velocity.iter().all(|v| *v == Vec3::ZERO));
+        assert!(world.rigid_deviation(0) < 1e-5);
+        // Within `pose_nudge_beyond`: nothing moves.
+        let mut still = one_box();
+        let near = Pose::from_translation(Vec3::new(0.002, 0.0, 0.025));
+        let none = nudge_towards_found(&mut still, &[Some(found_at(near))], &[1.0], &c, dt);
+        assert!(none.is_empty());
+    }
+
+    #[test]
+    fn a_nudge_puts_its_velocity_share_of_the_moves_rate_into_the_object_and_reports_its_force() {
+        let mut world = one_box();
+        let here = world.shapes.pose[0];
+        let target = Pose::new(here.translation + Vec3::new(0.0, 0.03, 0.0), here.rotation);
+        let c = CorrectConfig {
+            pose_nudge: 1.0,
+            pose_nudge_velocity: 0.5,
+            ..CorrectConfig::default()
+        };
+        let dt = 1.0 / 30.0;
+        let centre = world.shape_centroid(0);
+        let nudges = nudge_towards_found(&mut world, &[Some(found_at(target))], &[1.0], &c, dt);
+        let moved = world.shape_centroid(0) - centre;
+        // A pure translation: the part within `pose_nudge_beyond` is left to the pull.
+        assert!(
+            (moved.y - (0.03 - c.pose_nudge_beyond)).abs() < 1e-4,
+            "{moved}"
+        );
+        let v = world.shape_velocity(0);
+        assert!((v - 0.5 * moved / dt).length() < 1e-3, "{v}");
+        let mass: f32 = (0..world.particles.len())
+            .map(|i| world.particles.mass(i))
+            .sum();
+        let f = nudges[0].force;
+        assert!(
+            (f - mass * moved / (dt * dt)).length() < 1e-2 * f.length(),
+            "{f}"
+        );
+        // No share (full agreement): no nudge.
+        let mut agreed = one_box();
+        let none = nudge_towards_found(&mut agreed, &[Some(found_at(target))], &[0.0], &c, dt);
+        assert!(none.is_empty());
+    }
+}
