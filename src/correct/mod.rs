@@ -128,9 +128,10 @@ pub struct CorrectConfig {
     /// pulled a little and one visibly off in full. At or above `pose_search_below`: in full
     /// wherever the search runs.
     pub pose_pull_full_below: f32,
-    /// Share (0-1) of a convincing found pose's offset beyond the dead zone that the tracked
-    /// state takes at once each tick (`nudge`: the object's particles moved rigidly towards it,
-    /// in proportion to `pull_share`), before the pull acts on what is left. 0: the pull alone.
+    /// Share (0-1) of a convincing found pose's offset beyond `pose_nudge_beyond` that the
+    /// tracked state takes at once each tick (`nudge`: the object's particles moved rigidly
+    /// towards it, in proportion to `pull_share`; none for an object the model has touching the
+    /// robot or another object), before the pull acts on what is left. 0: the pull alone.
     pub pose_nudge: f32,
     /// Share of the nudge's rate (its move / dt) added to the object's velocity.
     pub pose_nudge_velocity: f32,

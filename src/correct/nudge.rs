@@ -1,10 +1,11 @@
 //! The pose nudge: where the local search (`relocate`) finds an object convincingly off the
-//! model's pose, part of that offset (beyond `pose_nudge_beyond`) is taken into the tracked state at
-//! once, the object's particles moved rigidly towards the found pose (`nudge_towards_found`), and
-//! part of the move's rate into their velocity. A state update, like a filter's, where the pose
-//! pull (`pull`) is a force: a force the model's friction or a missing spring holds back moves
-//! the object only once the pull has grown past them, so an object pushed by something the model
-//! lacks lagged behind by ticks and then overshot; a nudge is not held back.
+//! model's pose, part of that offset (beyond `pose_nudge_beyond`) is taken into the tracked
+//! state at once, the object's particles moved rigidly towards the found pose
+//! (`nudge_towards_found`), and part of the move's rate into their velocity. A state update,
+//! like a filter's, where the pose pull (`pull`) is a force: a force the model's friction or a
+//! missing spring holds back moves the object only once the pull has grown past them, so an
+//! object pushed by something the model lacks lagged behind by ticks and then overshot; a nudge
+//! is not held back.
 //!
 //! This module owns moving tracked objects towards found poses and what such a move is worth
 //! as a force (for the residuals); it never searches (`relocate`) and never decides whether a
@@ -23,8 +24,6 @@ pub struct Nudge {
     pub shape: ShapeId,
     pub motion: Pose,
     pub force: Vec3,
-    /// The share of the offset taken (0-1).
-    pub step: f32,
 }
 
 /// Move each rigid object the search found convincingly off (`found`, already filtered: `None`
@@ -84,7 +83,6 @@ pub fn nudge_towards_found(
             shape: s as ShapeId,
             motion,
             force: mass * moved / (dt * dt),
-            step,
         });
     }
     nudges
