@@ -417,6 +417,14 @@ impl CorrectConfig {
             );
         }
         for (name, v) in [
+            ("pose_nudge", self.pose_nudge),
+            ("pose_nudge_velocity", self.pose_nudge_velocity),
+        ] {
+            if v > 1.0 {
+                bail!("correct.{name} is a share: set it between 0 and 1 (got {v})");
+            }
+        }
+        for (name, v) in [
             ("slippery_floor", self.slippery_floor),
             ("reference_damping", self.reference_damping),
         ] {

@@ -197,6 +197,16 @@ mod tests {
             (f - mass * moved / (dt * dt)).length() < 1e-2 * f.length(),
             "{f}"
         );
+        // A share over 1 is refused with what to set.
+        let over = CorrectConfig {
+            pose_nudge: 1.5,
+            ..CorrectConfig::default()
+        };
+        let err = over.validate().unwrap_err().to_string();
+        assert!(
+            err.contains("correct.pose_nudge") && err.contains("between 0 and 1"),
+            "{err}"
+        );
         // No share (full agreement): no nudge.
         let mut agreed = one_box();
         let none = nudge_towards_found(&mut agreed, &[Some(found_at(target))], &[0.0], &c, dt);
