@@ -400,3 +400,55 @@ fn a_nudge_follows_an_unmodelled_hand_closer_than_the_pull_alone() {
         "mean summed over the seeds: nudged {mean_nudge:.1} against {mean_pull:.1} mm"
     );
 }
+
+/// The tilt (rad) of the last pose of `object` in a pose table (t, object, x, y, z, qx, qy, qz,
+/// qw): the angle between its body's z axis and the world's.
+fn final_tilt(path: &Path, object: &str) -> f64 {
+    let text = std::fs::read_to_string(path).unwrap();
+    let last = text
+        .lines()
+        .rfind(|l| l.split(',').nth(1) == Some(object))
+        .unwrap_or_else(|| panic!("no {object} in {}", path.display()));
+    let q: Vec<f64> = last
+        .split(',')
+        .skip(5)
+        .map(|x| x.parse().unwrap())
+        .collect();
+    (1.0 - 2.0 * (q[0] * q[0] + q[1] * q[1]))
+        .clamp(-1.0, 1.0)
+        .acos()
+}
+
+#[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
+fn an_object_the_model_tips_over_is_found_standing_where_the_cameras_see_it_stand() {
+    // A T-block on a cord the model lacks, pushed several times: at 3.1 s the model throws it
+    // onto its side (89-98 deg) while MuJoCo's stays flat. The search for it used to turn it
+    // only about the vertical from where it was, so it was found on its side (agreement 0.74),
+    // and lost again: 48.2 mm mean, 127.5 p95, 104.5 final. Found standing as it started, it
+    // is tracked within 3 mm from then (4.3 mm mean, 6.7 p95). The seed is one of the fresh
+    // ones this was first measured on (tether_1301), kept as a regression guard.
+    let folder = record_as("tipped", "tether", 1301, None, &[]);
+    let m = replay(&folder, &[]);
+    let (mean, p95) = (
+        error_mm(&m, "obj1", "mean_mm"),
+        error_mm(&m, "obj1", "p95_mm"),
+    );
+    let tilt = final_tilt(&folder.join("out/objects.csv"), "obj1").to_degrees();
+    let truth_tilt = final_tilt(&folder.join("ground_truth.csv"), "obj1").to_degrees();
+    let events = m["track_events"].as_array().cloned().unwrap_or_default();
+    let stood_up = events.iter().any(|e| {
+        e["event"] == "relocated" && e["turn_deg"].as_f64().is_some_and(|turn| turn > 45.0)
+    });
+    println!(
+        "tether_1301: mean {mean:.1} p95 {p95:.1} mm; final tilt {tilt:.1} deg (truth \
+         {truth_tilt:.1}); events {events:?}"
+    );
+    assert!(
+        truth_tilt < 5.0,
+        "MuJoCo's T-block ends tilted {truth_tilt} deg"
+    );
+    assert!(stood_up, "no relocation turned it back: {events:?}");
+    assert!(tilt < 10.0, "tracked on its side at the end: {tilt} deg");
+    assert!(mean < 8.0 && p95 < 15.0, "mean {mean} p95 {p95} mm");
+}

@@ -4,8 +4,8 @@
 //! it is found again after `FOUND_AFTER` measured ticks above `FOUND_ABOVE`. Ticks that measure
 //! nothing (too little of the object in view) change nothing.
 //!
-//! An object whose agreement stays below `SEARCH_BELOW` for `SEARCH_AFTER` ticks is searched for
-//! in the images (`correct::relocate`); where it is found, the tracker moves it there and says so
+//! An object whose agreement is below `SEARCH_BELOW` in `SEARCH_AFTER` of its last `SEARCH_WINDOW`
+//! measured ticks is searched for in the images (`correct::relocate`); where it is found, the tracker moves it there and says so
 //! (`Change::Relocated`): a jump the model did not make is something outside the model moving it.
 //!
 //! Owns the state per object and the events; what is done about a lost object is its caller's.
@@ -17,10 +17,16 @@ pub const LOST_BELOW: f32 = 0.35;
 pub const LOST_AFTER: usize = 10;
 pub const FOUND_ABOVE: f32 = 0.6;
 pub const FOUND_AFTER: usize = 3;
-/// Measured ticks below `SEARCH_BELOW` before the object is searched for: an object that only
-/// partly overlaps what the cameras see is searched for before it is lost.
+/// Measured ticks below `SEARCH_BELOW`, among the last `SEARCH_WINDOW`, before the object is
+/// searched for: an object that only partly overlaps what the cameras see is searched for before
+/// it is lost. Not only in a row: one camera measures a tick, in turn, and an object the model
+/// has tipped over can still half agree with one of them (MuJoCo's control_pushed_1001 with the
+/// nudge: 0.51, 0.70, 0.49, 0.53, 0.83, 0.90, 0.52 after the rod's strike, never three in a row,
+/// then 31 mm off on its side for good). Three of five, not two: a camera that never agrees
+/// (one in three ticks low) alone asks for no search.
 pub const SEARCH_BELOW: f32 = 0.6;
-pub const SEARCH_AFTER: usize = 3;
+pub const SEARCH_AFTER: u32 = 3;
+pub const SEARCH_WINDOW: u32 = 5;
 
 /// What happened to a tracked object.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -111,8 +117,9 @@ pub struct TrackHealth {
     /// Per shape: consecutive measured ticks against the current state, whether lost, and the
     /// newest agreement measured.
     streak: Vec<usize>,
-    /// Per shape: consecutive measured ticks below `SEARCH_BELOW`, lost or not.
-    low: Vec<usize>,
+    /// Per shape: which of its last `SEARCH_WINDOW` measured ticks were below `SEARCH_BELOW`
+    /// (bit 0 the newest), lost or not.
+    low: Vec<u32>,
     lost: Vec<bool>,
     last: Vec<Option<f32>>,
     /// Per shape: how many times it was relocated.
@@ -131,7 +138,8 @@ impl TrackHealth {
         for (s, a) in agreement.iter().enumerate() {
             let Some(a) = *a else { continue };
             self.last[s] = Some(a);
-            self.low[s] = if a < SEARCH_BELOW { self.low[s] + 1 } else { 0 };
+            let window = (1u32 << SEARCH_WINDOW) - 1;
+            self.low[s] = ((self.low[s] << 1) | (a < SEARCH_BELOW) as u32) & window;
             let against = match self.lost[s] {
                 false => a < LOST_BELOW,
                 true => a > FOUND_ABOVE,
@@ -162,7 +170,11 @@ impl TrackHealth {
     /// Whether shape `s` has disagreed with the images long enough to be searched for.
     /// A lost object is searched for whether or not it is measured (out of view, it is not).
     pub fn wants_search(&self, s: ShapeId) -> bool {
-        self.is_lost(s) || self.low.get(s as usize).is_some_and(|&n| n >= SEARCH_AFTER)
+        self.is_lost(s)
+            || self
+                .low
+                .get(s as usize)
+                .is_some_and(|n| n.count_ones() >= SEARCH_AFTER)
     }
 
     /// Shape `s` was moved to where the images show it: its disagreement starts over (a lost
@@ -226,5 +238,44 @@ mod tests {
         assert!(h.wants_search(0));
         h.relocated(0);
         assert!(!h.wants_search(0) && h.relocations(0) == 1);
+    }
+
+    /// Low ticks count among the last few measured, not only in a row: a disagreement that one
+    /// camera of three half breaks asks for a search; one camera that never agrees does not.
+    #[test]
+    fn an_object_is_searched_for_after_most_of_its_recent_ticks_disagree_not_only_a_run() {
+        let mut h = TrackHealth::default();
+        for (t, a) in [0.51, 0.70, 0.49, 0.53].into_iter().enumerate() {
+            assert!(!h.wants_search(0), "tick {t}");
+            h.update(t as f64, &[Some(a)]);
+        }
+        assert!(
+            h.wants_search(0),
+            "three of the last four below {SEARCH_BELOW}"
+        );
+        let mut h = TrackHealth::default();
+        for t in 0..30 {
+            let a = if t % 3 == 0 { 0.3 } else { 0.95 };
+            h.update(t as f64, &[Some(a)]);
+            assert!(!h.wants_search(0) && !h.is_lost(0), "tick {t}");
+        }
+        // Ticks that measure nothing neither count nor push low ticks out of the window.
+        let mut h = TrackHealth::default();
+        for (t, a) in [
+            Some(0.4),
+            None,
+            None,
+            None,
+            None,
+            None,
+            Some(0.4),
+            Some(0.4),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            h.update(t as f64, &[a]);
+        }
+        assert!(h.wants_search(0));
     }
 }

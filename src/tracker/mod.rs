@@ -40,9 +40,15 @@ pub struct Tracker {
     /// starts), and when it was last searched for.
     well_tracked: Vec<Option<Pose>>,
     searched_at: Vec<f64>,
+    /// Per shape: its pose when tracking began, standing as it stood then (`upright_at`).
+    start: Vec<Pose>,
     /// Which objects stand off the modelled table (`table_edge`).
     table_edge: TableEdge,
 }
+
+/// A search from a pose tipped more than this (rad) from how the object stood when tracking
+/// began also looks for it standing that way (`upright_at`).
+pub const TIPPED_BEYOND: f32 = 0.35;
 
 /// Seconds between two searches for the same object.
 pub const SEARCH_EVERY: f64 = 0.15;
@@ -119,6 +125,7 @@ impl Tracker {
             _ => None,
         };
         let table_edge = TableEdge::of(&scene.world);
+        let start = scene.world.shapes.pose.clone();
         Ok(Self {
             scene,
             solver,
@@ -126,6 +133,7 @@ impl Tracker {
             health: TrackHealth::default(),
             well_tracked: Vec::new(),
             searched_at: Vec::new(),
+            start,
             table_edge,
         })
     }
@@ -160,7 +168,7 @@ impl Tracker {
                 corrector,
                 &mut self.scene.world,
                 &mut self.health,
-                (&mut self.well_tracked, &mut self.searched_at),
+                (&mut self.well_tracked, &mut self.searched_at, &self.start),
                 &full,
                 &stats.agreement,
             )?;
@@ -182,12 +190,13 @@ impl Tracker {
 
     /// Objects whose silhouettes have disagreed with the images for a few ticks are searched for
     /// around where they were last well tracked (`correct::relocate`), and moved where the
-    /// images show them; each move is an event.
+    /// images show them; each move is an event. A search from a pose the model has tipped over
+    /// (a strike it got wrong) also looks for the object standing as it stood at the start.
     fn relocate_lost(
         corrector: &mut Corrector,
         world: &mut World,
         health: &mut TrackHealth,
-        (well_tracked, searched_at): (&mut Vec<Option<Pose>>, &mut Vec<f64>),
+        (well_tracked, searched_at, start): (&mut Vec<Option<Pose>>, &mut Vec<f64>, &[Pose]),
         views: &[(Camera, &[glam::Vec3])],
         agreement: &[Option<f32>],
     ) -> Result<Vec<TrackEvent>> {
@@ -219,7 +228,14 @@ impl Tracker {
                 occluder_threshold: corrector.config.occluder_threshold,
                 ..Default::default()
             };
-            let Some(found) = corrector.relocate(world, shape, reference, views, &search)? else {
+            let mut found = corrector.relocate(world, shape, reference, views, &search)?;
+            if let Some(upright) = start.get(s).and_then(|st| upright_at(&reference, st)) {
+                let standing = corrector.relocate(world, shape, upright, views, &search)?;
+                if standing.is_some_and(|b| found.is_none_or(|a| b.score > a.score)) {
+                    found = standing;
+                }
+            }
+            let Some(found) = found else {
                 continue;
             };
             if found.score < health::FOUND_ABOVE || found.score < found.score_here + RELOCATE_MARGIN
@@ -339,6 +355,26 @@ impl Tracker {
     }
 }
 
+/// `pose` standing as `start` stood (its tilt from the vertical taken back, its turn about the
+/// vertical and its place on the table kept, at the height it started at), where it is tipped
+/// more than `TIPPED_BEYOND` from it; None otherwise.
+pub fn upright_at(pose: &Pose, start: &Pose) -> Option<Pose> {
+    let relative = (pose.rotation * start.rotation.inverse()).normalize();
+    let up = relative * glam::Vec3::Z;
+    if up.z.clamp(-1.0, 1.0).acos() <= TIPPED_BEYOND {
+        return None;
+    }
+    // The turn about the vertical in the relative rotation (its twist about z).
+    let twist = glam::Quat::from_xyzw(0.0, 0.0, relative.z, relative.w);
+    let twist = match twist.length() > 1e-3 {
+        true => twist.normalize(),
+        false => glam::Quat::IDENTITY,
+    };
+    let mut at = pose.translation;
+    at.z = start.translation.z;
+    Some(Pose::new(at, (twist * start.rotation).normalize()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -356,6 +392,35 @@ mod tests {
             time,
             ..Default::default()
         }
+    }
+
+    /// A pose tipped onto its side stands up as the object started (its up axis back to the
+    /// start's, at the start's height), keeping its place and its turn about the vertical; a pose
+    /// only turned, or tipped a little, is left to the search as it is.
+    #[test]
+    fn a_tipped_object_is_looked_for_standing_as_it_started_with_its_turn_kept() {
+        use glam::Quat;
+        let start = Pose::new(Vec3::new(0.5, 0.0, 0.025), Quat::from_rotation_z(0.3));
+        let turn = Quat::from_rotation_z(1.1);
+        let tipped = Pose::new(
+            Vec3::new(0.6, -0.02, 0.06),
+            turn * Quat::from_rotation_x(1.6) * start.rotation,
+        );
+        let up = upright_at(&tipped, &start).expect("tipped 92 deg");
+        assert!(up.translation.distance(Vec3::new(0.6, -0.02, 0.025)) < 1e-6);
+        let up_axis = |p: &Pose| p.rotation * start.rotation.inverse() * Vec3::Z;
+        assert!(up_axis(&up).distance(Vec3::Z) < 1e-4, "{:?}", up_axis(&up));
+        // The turn about the vertical: a body axis in the horizontal plane keeps its heading.
+        let heading = |q: Quat| {
+            let x = q * Vec3::X;
+            x.y.atan2(x.x)
+        };
+        let turned = (turn * start.rotation).normalize();
+        assert!((heading(up.rotation) - heading(turned)).abs() < 1e-3);
+        let only_turned = Pose::new(tipped.translation, turned);
+        assert!(upright_at(&only_turned, &start).is_none());
+        let leaning = Pose::new(tipped.translation, Quat::from_rotation_y(0.2) * turned);
+        assert!(upright_at(&leaning, &start).is_none());
     }
 
     /// A tick whose end lies three ticks ahead predicts across the two it missed: the same world
