@@ -4,9 +4,10 @@
 //! it is found again after `FOUND_AFTER` measured ticks above `FOUND_ABOVE`. Ticks that measure
 //! nothing (too little of the object in view) change nothing.
 //!
-//! An object whose agreement is below `SEARCH_BELOW` in `SEARCH_AFTER` of its last `SEARCH_WINDOW`
-//! measured ticks is searched for in the images (`correct::relocate`); where it is found, the tracker moves it there and says so
-//! (`Change::Relocated`): a jump the model did not make is something outside the model moving it.
+//! An object whose agreement is below `SEARCH_BELOW` in `SEARCH_AFTER` of its last
+//! `SEARCH_WINDOW` measured ticks is searched for in the images (`correct::relocate`); where it is
+//! found, the tracker moves it there and says so (`Change::Relocated`): a jump the model did not
+//! make is something outside the model moving it.
 //!
 //! Owns the state per object and the events; what is done about a lost object is its caller's.
 
@@ -27,6 +28,8 @@ pub const FOUND_AFTER: usize = 3;
 pub const SEARCH_BELOW: f32 = 0.6;
 pub const SEARCH_AFTER: u32 = 3;
 pub const SEARCH_WINDOW: u32 = 5;
+/// The bits of `TrackHealth::low` that hold the last `SEARCH_WINDOW` ticks.
+const WINDOW_BITS: u32 = (1 << SEARCH_WINDOW) - 1;
 
 /// What happened to a tracked object.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -138,8 +141,7 @@ impl TrackHealth {
         for (s, a) in agreement.iter().enumerate() {
             let Some(a) = *a else { continue };
             self.last[s] = Some(a);
-            let window = (1u32 << SEARCH_WINDOW) - 1;
-            self.low[s] = ((self.low[s] << 1) | (a < SEARCH_BELOW) as u32) & window;
+            self.low[s] = ((self.low[s] << 1) | (a < SEARCH_BELOW) as u32) & WINDOW_BITS;
             let against = match self.lost[s] {
                 false => a < LOST_BELOW,
                 true => a > FOUND_ABOVE,
