@@ -2,8 +2,9 @@
 //! rigid objects resting on the table): the ground plane by RANSAC on the depth points; per object,
 //! its masked depth points give an oriented bounding box standing on the ground; a lattice of
 //! particles fills the box; carving removes the cells a camera sees through (depth) or sees no
-//! object at (mask); one Gaussian per particle gets its colour from the images by Adam; Gaussians
-//! are bonded to their particles. Objects built side by side are parted where their particles
+//! object at (mask), and `without_phantoms` those no camera saw the object over or under (hidden
+//! by the robot or by the object itself); one Gaussian per particle gets its colour from the
+//! images by Adam; Gaussians are bonded to their particles. Objects built side by side are parted where their particles
 //! overlap (`part_overlapping`: the collision shape only, never the Gaussians).
 
 use super::table::{ColourFit, FitFrame, fit_colours};
