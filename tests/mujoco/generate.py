@@ -36,9 +36,11 @@ def seeds(text: str) -> list[int]:
 
 
 def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str | None, stamp0: float,
-           depth: str = "32FC1", layout: str = "pegs", storage: str = "mcap", support: str = "corners") -> Path:
-    scene = scenes.draw(kind, seed, shape)
+           depth: str = "32FC1", layout: str = "pegs", storage: str = "mcap", support: str = "corners",
+           follow: bool = True) -> Path:
+    scene = scenes.draw(kind, seed, shape, from_start=not follow)
     scene.support = support
+    scene.follow = follow
     folder = out / f"{kind}_{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     clock = time.time()
@@ -75,12 +77,17 @@ def main() -> None:
     ap.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     ap.add_argument("--support", choices=["corners", "spread"], default="corners",
                     help="where objects bear on the table: MuJoCo's box corners, or spread under the bottom face")
+    ap.add_argument("--plan-from-start", action="store_true",
+                    help="lay out every push as recorded until the follow change: against the objects where "
+                         "they stand at the start, the rod 3 cm behind the object's furthest extent (a later push "
+                         "may bring the rod down into an object an earlier one moved, as an arm model that is off would)")
     a = ap.parse_args()
     kinds = {"all": scenes.KINDS, "model_errors": scenes.MODEL_ERRORS}.get(a.kind, [a.kind])
     chosen = seeds(a.seeds) if a.seeds else [a.seed if a.seed is not None else 0]
     for kind in kinds:
         for seed in chosen:
-            record(kind, seed, a.out, a.width, a.height, a.shape, a.stamp0, a.depth, a.layout, a.storage, a.support)
+            record(kind, seed, a.out, a.width, a.height, a.shape, a.stamp0, a.depth, a.layout, a.storage, a.support,
+                   not a.plan_from_start)
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import random
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 # The families a scene can hide, and the two controls.
 KINDS = ["control_pushed", "control_still", "tilt", "drag", "patch", "weight", "tether", "heavy", "restitution"]
@@ -66,13 +66,20 @@ class Obj:
         bx, by = c * d[0] + s * d[1], -s * d[0] + c * d[1]
         return max(p.centre[0] * bx + p.centre[1] * by + p.half[0] * abs(bx) + p.half[1] * abs(by) for p in self.parts)
 
-    def crossed_by(self, point: tuple[float, float], d: tuple[float, float], margin: float) -> bool:
-        """Whether the line through `point` along `d` crosses the object's outline shrunk by
-        `margin` (on the table, object at rest where it was drawn)."""
+    def chord(self, point: tuple[float, float], d: tuple[float, float], margin: float = 0.0) -> tuple[float, float] | None:
+        """Where the line through `point` along unit `d` runs inside the object's outline shrunk
+        by `margin` (on the table, object at rest where it stands): the first and last distance
+        along `d` from `point`, or None when it misses."""
         if self.shape == "cylinder":
             px, py = point[0] - self.x, point[1] - self.y
-            return abs(px * -d[1] + py * d[0]) < self.radius - margin
+            lateral, along = px * -d[1] + py * d[0], px * d[0] + py * d[1]
+            r = self.radius - margin
+            if abs(lateral) >= r:
+                return None
+            half = math.sqrt(r * r - lateral * lateral)
+            return (-along - half, -along + half)
         c, s = math.cos(self.yaw), math.sin(self.yaw)
+        spans = []
         for p in self.parts:
             cx = self.x + c * p.centre[0] - s * p.centre[1]
             cy = self.y + s * p.centre[0] + c * p.centre[1]
@@ -91,8 +98,15 @@ class Obj:
                     a, b = (-h - q[k]) / e[k], (h - q[k]) / e[k]
                     lo, hi = max(lo, min(a, b)), min(hi, max(a, b))
             if lo < hi:
-                return True
-        return False
+                spans.append((lo, hi))
+        if not spans:
+            return None
+        return (min(a for a, _ in spans), max(b for _, b in spans))
+
+    def crossed_by(self, point: tuple[float, float], d: tuple[float, float], margin: float) -> bool:
+        """Whether the line through `point` along `d` crosses the object's outline shrunk by
+        `margin` (on the table, object at rest where it stands)."""
+        return self.chord(point, d, margin) is not None
 
     def half_height_z(self) -> float:
         if self.shape == "cylinder":
@@ -108,6 +122,13 @@ class Push:
     t1: float
     start: tuple[float, float]
     end: tuple[float, float]
+    # The object's place and turn (x, y, yaw) the push is aimed at; a later push follows the
+    # object from there, from the end of the push before until it starts (`simulate.follow`).
+    aim: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        # Where it was first aimed (`aim` moves with the object).
+        self.planned = self.aim
 
 
 @dataclass
@@ -133,6 +154,12 @@ class Scene:
     # corners ("corners"), or spread over a grid of points under the bottom face ("spread", as
     # pegs's particles bear). It decides how far a push turns an object (tests/mujoco/support.py).
     support: str = "corners"
+    # Whether a later push (of the robot or the hand) follows its object from where it was aimed,
+    # from the end of the push before until it starts (`simulate.follow`). Without, every push is
+    # planned from where the objects stand at the start, and one can bring the rod down into an
+    # object an earlier push moved: MuJoCo's kinematic rod then passes into it (soft contacts)
+    # while the images show it unmoved, as a robot model that is off would put its rod there.
+    follow: bool = True
 
 
 def make_object(rng: random.Random, shape: str, name: str, label: int, x: float, y: float) -> Obj:
@@ -164,12 +191,30 @@ def make_object(rng: random.Random, shape: str, name: str, label: int, x: float,
 STRIKES = {"drag", "tilt", "patch", "heavy", "slippery", "sticky", "heavy5"}
 
 
-def plan_pushes(rng: random.Random, shape: str, target: Obj, duration: float, strike: bool) -> list[Push]:
+# The pusher's radius (urdf/panda_pusher.urdf's rod 15 mm, the hand 18 mm) with room to spare.
+PUSHER_CLEARANCE = 0.02
+
+
+def clean_strike(target: Obj, line: tuple[float, float], d: tuple[float, float]) -> bool:
+    """Whether a pusher on the line through `line` along `d` first touches `target` where the line
+    itself meets it (within 2 mm), not with its side on another part of it."""
+    chord = target.chord(line, d)
+    grown = target.chord(line, d, -PUSHER_CLEARANCE)
+    return chord is not None and grown is not None and grown[0] >= chord[0] - PUSHER_CLEARANCE - 0.002
+
+
+def plan_pushes(rng: random.Random, shape: str, target: Obj, duration: float, strike: bool,
+                from_start: bool = False) -> list[Push]:
     """Pushes across `target` from random sides, shaped as `shape` within `duration`; short pushes
-    at 8-14 cm/s, or 30-45 cm/s when they `strike`."""
+    at 8-14 cm/s, or 30-45 cm/s when they `strike`. Each push is laid out against the object
+    where the pushes before it are meant to leave it; `from_start` lays every push out against
+    the object where it stands at the start and starts the rod 3 cm behind the object's furthest
+    extent rather than where the rod's line meets it (as recorded until the follow change)."""
     speeds = (0.3, 0.45) if strike else (0.08, 0.14)
 
     def push(t0: float, t1: float, centre: tuple[float, float], length: float) -> Push:
+        aim = (centre[0], centre[1], target.yaw)
+        at = target if from_start else replace(target, x=centre[0], y=centre[1])
         # Square on to one of the object's faces (within 15 degrees; a glancing push slides off),
         # and not straight at the robot's base, so the arm does not fold over.
         if target.shape == "cylinder":
@@ -186,17 +231,23 @@ def plan_pushes(rng: random.Random, shape: str, target: Obj, duration: float, st
         for _ in range(50):
             lateral = rng.choice([-1.0, 1.0]) * rng.uniform(0.3, 0.6) * width
             line = (centre[0] + side[0] * lateral, centre[1] + side[1] * lateral)
-            # The rod must strike the object squarely, a centimetre inside its outline.
-            if target.crossed_by(line, d, 0.01):
+            # The rod must strike the object squarely, a centimetre inside its outline, on the
+            # face its line meets first: not brushing past another part of it on the way (beside
+            # a T-block's stem towards its top bar), nor coming down onto one.
+            if at.crossed_by(line, d, 0.01) and (from_start or clean_strike(at, line, d)):
                 break
         else:
             line = centre
         centre = line
-        # The rod starts 3 cm before the object's face and travels `length` beyond it.
-        back = target.extent((-d[0], -d[1])) + 0.03
+        # The rod starts 3 cm before it meets the object and travels `length` beyond that.
+        chord = at.chord(line, d)
+        if from_start or chord is None:
+            back = target.extent((-d[0], -d[1])) + 0.03
+        else:
+            back = 0.03 - chord[0]
         start = (centre[0] - d[0] * back, centre[1] - d[1] * back)
         travel = 0.03 + length
-        return Push(t0, t1, start, (start[0] + d[0] * travel, start[1] + d[1] * travel))
+        return Push(t0, t1, start, (start[0] + d[0] * travel, start[1] + d[1] * travel), aim)
 
     centre = (target.x, target.y)
     if shape == "push_then_rest":
@@ -211,7 +262,8 @@ def plan_pushes(rng: random.Random, shape: str, target: Obj, duration: float, st
         length = rng.uniform(0.04, 0.07)
         p = push(t, t + length / rng.uniform(*speeds), centre, length)
         pushes.append(p)
-        # The next push starts where this one left the object (roughly) after a pause to rest.
+        # The next push is aimed where this one leaves the object (roughly) after a pause to
+        # rest; the recording moves it to where the object is then (`simulate.follow`).
         dx, dy = p.end[0] - p.start[0], p.end[1] - p.start[1]
         n = math.hypot(dx, dy)
         centre = (centre[0] + dx / n * (length - 0.005), centre[1] + dy / n * (length - 0.005))
@@ -219,8 +271,9 @@ def plan_pushes(rng: random.Random, shape: str, target: Obj, duration: float, st
     return pushes
 
 
-def draw(kind: str, seed: int, shape: str | None = None) -> Scene:
-    """The scene of `kind` for `seed` (recording shape drawn too unless given)."""
+def draw(kind: str, seed: int, shape: str | None = None, from_start: bool = False) -> Scene:
+    """The scene of `kind` for `seed` (recording shape drawn too unless given; `from_start`: the
+    pushes laid out as recorded until the follow change, see `plan_pushes`)."""
     if kind not in KINDS + MODEL_ERRORS:
         raise ValueError(f"unknown kind {kind} (one of {', '.join(KINDS + MODEL_ERRORS[:-2])})")
     rng = random.Random(f"{kind}/{seed}")
@@ -232,7 +285,7 @@ def draw(kind: str, seed: int, shape: str | None = None) -> Scene:
     first = make_object(rng, obj_shape, "obj1", 1, x, y)
     objects = [first]
     duration = 4.0 if shape != "several_pushes" else 5.5
-    pushes = plan_pushes(rng, shape, first, duration, kind in STRIKES)
+    pushes = plan_pushes(rng, shape, first, duration, kind in STRIKES, from_start)
     truth: dict = {"family": "none", "object": first.name}
     s = Scene(kind, seed, shape, duration, friction, objects, pushes, truth)
     if kind == "control_still":

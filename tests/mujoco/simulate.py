@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
@@ -23,6 +23,7 @@ SUBSTEPS = 20  # engine steps per frame (600 Hz)
 JOINT_RATE_DIVIDER = 6  # joint states at 100 Hz
 TIP = (0.0, 0.0, -0.14)  # the rod's tip in the panda_pusher link frame
 TIP_HEIGHT = 0.02  # above the table while pushing
+ROD_RADIUS = 0.015  # the pusher rod's (urdf/panda_pusher.urdf)
 PARKED = (0.3, -0.35, 0.25)  # where the tip waits in a scene without pushes
 HOME = [0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785]
 
@@ -269,12 +270,13 @@ def solve_ik(model: mujoco.MjModel, data: mujoco.MjData, target: np.ndarray, q: 
     return q
 
 
-def robot_plan(model: mujoco.MjModel, scene: Scene, times: np.ndarray) -> np.ndarray:
-    """Joint angles at each time of `times` (IK warm-started from the previous one)."""
+def robot_plan(model: mujoco.MjModel, scene: Scene, times: np.ndarray, q: np.ndarray | None = None) -> np.ndarray:
+    """Joint angles at each time of `times` (IK warm-started from the previous one, the first
+    from `q` or from home)."""
     data = mujoco.MjData(model)
     nq = 7
-    q = np.array(HOME)
-    q = solve_ik(model, data, tip_target(scene, 0.0), q, 300)
+    if q is None:
+        q = solve_ik(model, data, tip_target(scene, float(times[0])), np.array(HOME), 300)
     out = np.zeros((len(times), nq))
     for k, t in enumerate(times):
         q = solve_ik(model, data, tip_target(scene, t), q)
@@ -319,6 +321,50 @@ def apply_effects(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene, bodi
             model.geom_friction[model.geom_bodyid == body, 0] = mu
 
 
+def heading(quat_wxyz: np.ndarray) -> float:
+    """A body's turn about the vertical from MuJoCo's quaternion (w, x, y, z)."""
+    w, x, y, z = quat_wxyz
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+# Furthest (m) from where a later push was first aimed that it follows its object.
+FOLLOW_WITHIN = 0.2
+
+
+def follow(push, place: tuple[float, float, float]) -> None:
+    """Move `push` (in place) with its object from where it was aimed (`push.aim`: x, y, yaw) to
+    `place`: the same line through the object, turned with it."""
+    ax, ay, ayaw = push.aim
+    x, y, yaw = place
+    c, s = math.cos(yaw - ayaw), math.sin(yaw - ayaw)
+
+    def moved(p):
+        dx, dy = p[0] - ax, p[1] - ay
+        return (x + c * dx - s * dy, y + s * dx + c * dy)
+
+    push.start, push.end = moved(push.start), moved(push.end)
+    push.aim = place
+
+
+def push_start(push, scene: Scene, data: mujoco.MjData, bodies: list[int], key: str) -> dict:
+    """Where a push's tip comes down, against the objects as they are then: `gap_m`, the distance
+    along the push from the tip's centre to the first object's outline (None where its line
+    misses it), and `inside`, the objects the rod (or hand) overlaps already."""
+    radius = HAND_RADIUS if key == "hand" else ROD_RADIUS
+    d = np.array(push.end) - np.array(push.start)
+    d = tuple(d / np.linalg.norm(d))
+    gap, inside = None, []
+    for i, (o, b) in enumerate(zip(scene.objects, bodies)):
+        now = replace(o, x=float(data.xpos[b][0]), y=float(data.xpos[b][1]), yaw=heading(data.xquat[b]))
+        chord = now.chord(push.start, d)
+        if i == 0 and chord is not None:
+            gap = chord[0]
+        grown = now.chord(push.start, d, -radius)
+        if grown is not None and grown[0] < 0.0 < grown[1]:
+            inside.append(o.name)
+    return {"gap_m": gap, "inside": inside}
+
+
 def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
     rng = np.random.default_rng(zlib.crc32(f"{scene.kind}/{scene.seed}".encode()))
     model, cameras = build(scene, urdf, width, height, rng)
@@ -340,8 +386,44 @@ def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
     renderer = mujoco.Renderer(model, height, width)
     run = Run(cameras, [model.joint(j).name for j in range(nq)], [], [], [], {})
     impacts = []
+    # The next push of the robot and of the hand that moves with its object (`Scene.follow`):
+    # through the pause before it, aimed at where the object is (an arm does not jump, so the
+    # tip's way over bends towards it); from its start on, fixed.
+    following = {"pushes": 1, "hand": 1}
+    ik = mujoco.MjData(model)
+    # Each push's start as it came: how far its tip is from the object along its line.
+    begun = {"pushes": 0, "hand": 0}
+    run.measured["starts"] = {"pushes": [], "hand": []}
     for k in range(steps + 1):
         t = k * dt
+        for key in begun:
+            pushes = getattr(scene, key)
+            if begun[key] < len(pushes) and t >= pushes[begun[key]].t0:
+                run.measured["starts"][key].append(push_start(pushes[begun[key]], scene, data, bodies, key))
+                begun[key] += 1
+        for key in following if scene.follow else ():
+            pushes = getattr(scene, key)
+            j = following[key]
+            if j >= len(pushes) or t < pushes[j - 1].t1 or pushes[j].aim is None:
+                continue
+            b = bodies[0]
+            place = (float(data.xpos[b][0]), float(data.xpos[b][1]), heading(data.xquat[b]))
+            # An object that slid far away (off the table) is not chased: the push goes back to
+            # where it was planned (left where the object was last followed, its rod could come
+            # down on it as it slides to rest).
+            near = math.dist(place[:2], pushes[j].planned[:2]) < FOLLOW_WITHIN
+            follow(pushes[j], place if near else pushes[j].planned)
+            started = t >= pushes[j].t0
+            if key == "pushes" and k < steps:
+                if started:
+                    plan[k + 1:] = robot_plan(model, scene, times[k + 1:], plan[k])
+                elif k % SUBSTEPS == 0:
+                    # A frame ahead by inverse kinematics, the steps between in a straight line.
+                    n = min(SUBSTEPS, steps - k)
+                    q = solve_ik(model, ik, tip_target(scene, float(times[k + n])), plan[k])
+                    plan[k + 1:k + n + 1] = plan[k] + np.outer(np.arange(1, n + 1) / n, q - plan[k])
+            if started:
+                following[key] = j + 1
         if k % JOINT_RATE_DIVIDER == 0:
             run.joint_states.append((t, [float(v) for v in data.qpos[:nq]]))
         if k % SUBSTEPS == 0:

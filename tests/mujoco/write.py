@@ -189,8 +189,10 @@ def write_truth(out: Path, scene: Scene, run: Run, stamp0: float) -> None:
                  friction=scene.friction, stamp0=stamp0, support=scene.support,
                  objects=[dict(name=o.name, shape=o.shape, mass=o.mass, true_mass=o.true_mass,
                                com_offset=list(o.com_offset)) for o in scene.objects],
-                 pushes=[dict(t0=p.t0, t1=p.t1, start=list(p.start), end=list(p.end)) for p in scene.pushes],
-                 hand=[dict(t0=p.t0, t1=p.t1, start=list(p.start), end=list(p.end)) for p in scene.hand],
+                 pushes=[dict(t0=p.t0, t1=p.t1, start=list(p.start), end=list(p.end), **came)
+                         for p, came in zip(scene.pushes, run.measured["starts"]["pushes"])],
+                 hand=[dict(t0=p.t0, t1=p.t1, start=list(p.start), end=list(p.end), **came)
+                       for p, came in zip(scene.hand, run.measured["starts"]["hand"])],
                  start_pose={"object": first[1], "position": list(map(float, first[2])), "quaternion_xyzw": list(map(float, first[3]))})
     (out / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
 
