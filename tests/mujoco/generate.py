@@ -40,7 +40,6 @@ def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str 
            follow: bool = True) -> Path:
     scene = scenes.draw(kind, seed, shape, from_start=not follow)
     scene.support = support
-    scene.follow = follow
     folder = out / f"{kind}_{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     clock = time.time()

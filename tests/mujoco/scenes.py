@@ -287,7 +287,7 @@ def draw(kind: str, seed: int, shape: str | None = None, from_start: bool = Fals
     duration = 4.0 if shape != "several_pushes" else 5.5
     pushes = plan_pushes(rng, shape, first, duration, kind in STRIKES, from_start)
     truth: dict = {"family": "none", "object": first.name}
-    s = Scene(kind, seed, shape, duration, friction, objects, pushes, truth)
+    s = Scene(kind, seed, shape, duration, friction, objects, pushes, truth, follow=not from_start)
     if kind == "control_still":
         s.shape, s.pushes, s.duration = "still", [], 3.0
     elif kind == "tilt":
