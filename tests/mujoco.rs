@@ -530,3 +530,67 @@ fn a_rod_grazing_an_object_moves_it_as_far_as_another_engine_does() {
     );
     assert!(mean < 5.0 && last < 5.0, "mean {mean} final {last} mm");
 }
+
+/// Per tick of `folder`'s replay of `object`: the tracking error (mm) and whether the tracker had
+/// it lost (`out/tracking_error.csv`, `out/health.csv`, one row per tick each).
+fn error_and_lost(folder: &Path, object: &str) -> Vec<(f64, bool)> {
+    let rows = |file: &str, column: usize| -> Vec<String> {
+        let text = std::fs::read_to_string(folder.join("out").join(file)).unwrap();
+        text.lines()
+            .skip(1)
+            .filter(|l| l.split(',').nth(1) == Some(object))
+            .map(|l| l.split(',').nth(column).unwrap_or_default().to_string())
+            .collect()
+    };
+    let (error, lost) = (rows("tracking_error.csv", 2), rows("health.csv", 3));
+    assert_eq!(error.len(), lost.len(), "one row per tick in both");
+    error
+        .iter()
+        .zip(&lost)
+        .map(|(e, l)| (e.parse().unwrap(), l == "1"))
+        .collect()
+}
+
+/// An object the model holds back while it slides on, out of the cameras' views (slippery_1902:
+/// one camera still half sees where the model has it at the edge of its view, each camera
+/// measuring one tick in three) or beyond the modelled table (slippery_1602: the floor there,
+/// compared with the black of an empty render, looked like the orange bar) is never off
+/// silently: within every half second the tracker spends 30 mm or more off, it says the object
+/// is lost. Both were held 90-96 mm off for over 2 s, saying nothing, before.
+#[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
+fn an_object_that_slides_where_the_model_cannot_follow_is_reported_lost() {
+    let mut lost_runs = 0;
+    for seed in [1602, 1902] {
+        let folder = record_as("slid", "slippery", seed, None, &[]);
+        let travel = truth_travel(&folder, "obj1");
+        let m = replay(&folder, &[]);
+        let ticks = error_and_lost(&folder, "obj1");
+        let events = &m["track_events"];
+        println!(
+            "slippery_{seed}: slid {:.0} mm; events {events}",
+            travel * 1e3
+        );
+        assert!(travel > 0.25, "slippery_{seed} slid only {travel} m");
+        let mut off = 0;
+        for (k, (error, _)) in ticks.iter().enumerate() {
+            off = if *error >= 30.0 { off + 1 } else { 0 };
+            if off == 15 {
+                let run = &ticks[k + 1 - off..=k];
+                assert!(
+                    run.iter().any(|(_, lost)| *lost),
+                    "slippery_{seed}: 30 mm or more off for 0.5 s from tick {}, not lost: {run:?}",
+                    k + 1 - off
+                );
+                lost_runs += 1;
+            }
+        }
+        let said = events
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e["event"] == "lost");
+        assert_eq!(said, ticks.iter().any(|(_, l)| *l), "{events}");
+    }
+    println!("{lost_runs} half-seconds 30 mm or more off, each reported lost");
+}

@@ -703,7 +703,8 @@ impl Corrector {
                 let behind = match it == 0 && j == 0 {
                     true => {
                         let width = view.camera.width;
-                        Some(crop(self.background(world, &view.camera)?, width, *window))
+                        let (colour, coverage) = self.background_render(world, &view.camera)?;
+                        Some((crop(colour, width, *window), crop(coverage, width, *window)))
                     }
                     false => None,
                 };
@@ -719,7 +720,7 @@ impl Corrector {
                     .sum::<f32>()
                     * scale;
                 loss += camera_loss;
-                if let Some(behind) = &behind {
+                if let Some((behind, coverage)) = &behind {
                     stats.agreement = agreement::silhouette_agreement(
                         world,
                         &cloud,
@@ -728,6 +729,7 @@ impl Corrector {
                         &agreement::WindowPixels {
                             rendered: &out.colour,
                             background: behind,
+                            coverage,
                             observed: target,
                         },
                     );
@@ -1087,7 +1089,7 @@ impl DisplacementState {
     }
 }
 
-fn crop(image: &[Vec3], width: u32, w: Roi) -> Vec<Vec3> {
+fn crop<T: Copy>(image: &[T], width: u32, w: Roi) -> Vec<T> {
     let mut out = Vec::with_capacity(w.pixels());
     for y in w.y0..w.y1 {
         let row = (y * width) as usize;

@@ -1,13 +1,13 @@
 //! Pose search in the images, for what the Gaussians' forces cannot do: re-localise an object the
 //! model has lost (the rendered object no longer overlaps the observed one, so visual forces have
 //! no gradient left to follow), and measure the whole offset of one the model holds visibly off
-//! (Adam's bounded steps cap those forces; `Corrector::local_poses` feeds the pose pull).
-//! Candidate poses are a reference pose moved across the table and turned about the vertical; each
-//! is scored by how many of the object's Gaussians, placed there, land on pixels that look more
-//! like their own colour than like the static scene rendered there (the relative test of
-//! `agreement`), the middle camera's share. Only what a camera can see of the object counts: a
-//! Gaussian behind the object's near side (`Probe::seen_by`), or on a pixel the model has the
-//! robot or another object on (`Others::covering`), counts neither for nor against. Where asked
+//! (Adam's bounded steps cap those forces; `Corrector::local_poses` feeds the pose pull). Candidate
+//! poses are a reference pose moved across the table and turned about the vertical; each is scored
+//! by how many of the object's Gaussians, placed there, land on pixels that look more like their
+//! own colour than like the static scene rendered there (`agreement::looks_like`, the silhouette
+//! agreement's test), the middle camera's share. Only what a camera can see of the object counts: a
+//! Gaussian behind the object's near side (`Probe::seen_by`), or on a pixel the model has the robot
+//! or another object on (`Others::covering`), counts neither for nor against. Where asked
 //! (`Search::ring`), points just outside the object's outline are scored too, matching where they
 //! look like the static scene (`Probe::add_ring`). A coarse grid over the search radius, then a
 //! fine one around its best; candidates over another tracked object are skipped. A grid's
@@ -112,12 +112,6 @@ struct Frame<'a> {
     background: &'a [Vec3],
     coverage: &'a [f32],
 }
-
-/// A pixel the static scene covers less than this is outside the model (beyond the table): there
-/// the pixel must be within `ABSOLUTE_MATCH` (RGB distance, colours in [0, 1]) of the Gaussian's
-/// colour, as there is nothing to compare it with.
-const MIN_COVERAGE: f32 = 0.5;
-const ABSOLUTE_MATCH: f32 = 0.2;
 
 /// The object's Gaussians in its body frame, with their colours; the colours it shows and the
 /// occluder threshold when unexplained pixels are left out.
@@ -378,10 +372,7 @@ impl Probe {
                     continue;
                 }
                 seen += 1;
-                let like_object = match f.coverage[k] < MIN_COVERAGE {
-                    true => o.distance(*c) < ABSOLUTE_MATCH,
-                    false => o.distance(*c) < o.distance(bg),
-                };
+                let like_object = super::agreement::looks_like(o, *c, bg, f.coverage[k]);
                 matched += (like_object != *ring) as usize;
             }
             seen_anywhere += seen;

@@ -14,7 +14,14 @@
 use crate::world::ShapeId;
 use serde::Serialize;
 
-pub const LOST_BELOW: f32 = 0.35;
+/// Below this in `LOST_AFTER` measured ticks in a row, an object is lost. Each tick one camera
+/// measures, in turn, so a camera that still half sees the object where the model has it breaks
+/// a run of a lower bar every third tick: MuJoCo's slippery_1902, a bar the model held at the edge
+/// of two views while it slid on out of them, agreed 0.53, 0.00, 0.45 in turn for 3 s at 90 mm
+/// off and was never lost under 0.35. On MuJoCo's model-error sets (13 sets, 312 objects, each
+/// replayed with four correction settings) no object within 10 mm of its truth stayed under 0.6
+/// for `LOST_AFTER` ticks.
+pub const LOST_BELOW: f32 = 0.6;
 pub const LOST_AFTER: usize = 10;
 pub const FOUND_ABOVE: f32 = 0.6;
 pub const FOUND_AFTER: usize = 3;
@@ -240,6 +247,29 @@ mod tests {
         assert!(h.wants_search(0));
         h.relocated(0);
         assert!(!h.wants_search(0) && h.relocations(0) == 1);
+    }
+
+    /// One camera measures a tick, in turn: an object that one or two cameras still half see where
+    /// the model has it, and none sees mostly there, is lost all the same.
+    #[test]
+    fn an_object_no_camera_sees_mostly_where_the_model_has_it_is_lost_though_some_half_see_it() {
+        let mut h = TrackHealth::default();
+        let mut events = Vec::new();
+        for t in 0..LOST_AFTER {
+            assert!(!h.is_lost(0), "tick {t}");
+            let a = [0.53, 0.0, 0.45][t % 3];
+            events.extend(h.update(t as f64, &[Some(a)]));
+        }
+        assert!(
+            h.is_lost(0) && events.len() == 1 && events[0].lost(),
+            "{events:?}"
+        );
+        // Two cameras of three seeing it mostly where the model has it keep it tracked.
+        let mut h = TrackHealth::default();
+        for t in 0..30 {
+            h.update(t as f64, &[Some([0.7, 0.2, 0.65][t % 3])]);
+            assert!(!h.is_lost(0), "tick {t}");
+        }
     }
 
     /// Low ticks count among the last few measured, not only in a row: a disagreement that one
