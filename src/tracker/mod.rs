@@ -158,6 +158,7 @@ impl Tracker {
             let views = inputs.views();
             let dt = self.solver.config().dt;
             corrector.note_contacts(&self.solver.stats.touched);
+            corrector.note_masses(self.solver.inv_mass());
             let mut stats = corrector.correct(&mut self.scene.world, &views, dt)?;
             let time = self.scene.world.time;
             report.track_events = self.health.update(time, &stats.agreement);
