@@ -27,7 +27,7 @@ import statistics
 import subprocess
 import sys
 from collections import Counter
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -123,6 +123,12 @@ def main() -> None:
                                      out_dir(folder, "before", a.baseline_settings), a.reuse,
                                      a.baseline_settings))
                 for folder in folders}
+        # A failed replay stops the run at once, as it did one replay at a time: the replays
+        # not started yet are dropped, those under way finish.
+        for run in as_completed([run for pair in runs.values() for run in pair]):
+            if run.exception() is not None:
+                pool.shutdown(cancel_futures=True)
+                raise run.exception()
     for folder in folders:
         kind = json.loads((folder / "truth.json").read_text())["kind"]
         new, old = (run.result() for run in runs[folder])
