@@ -1,5 +1,5 @@
 //! What a tick consumes, gathered from the outside world: the newest usable image of every camera
-//! and the robot's joint trajectory. Both `pegs replay` and `pegs node` feed observations through
+//! (with its aligned depth where one of the same stamp came), and the robot's joint trajectory. Both `pegs replay` and `pegs node` feed observations through
 //! here, so the checks on everything that comes from outside (encodings, sizes, stamps, non-finite
 //! joints, unknown joints) and the choice of data for a tick are one code path.
 //!
@@ -23,6 +23,14 @@ pub const JUMP_BACK_S: f64 = 1.0;
 pub const RESTART_AFTER: usize = 3;
 /// How far past its last sample the joint trajectory is extended (linearly) to cover a tick.
 pub const MAX_JOINT_EXTRAPOLATION_S: f64 = 0.05;
+/// A depth image goes with a colour image stamped within this (s) of it: a camera whose colour
+/// and aligned depth are one frame carries one stamp on both (realsense2_camera with
+/// `enable_sync`); unsynchronised, they are up to half a frame apart at 30 Hz. At a push's 0.2
+/// m/s, 20 ms is 4 mm.
+pub const DEPTH_SKEW_S: f64 = 0.02;
+/// After this many ticks in a row with depth received but none within `DEPTH_SKEW_S` of the
+/// colour, that is said once per camera.
+const DEPTH_UNPAIRED_SAY: usize = 30;
 
 /// Why an observation was refused. Every refusal is counted and explained; none changes state.
 #[derive(Clone, Debug, PartialEq)]
@@ -140,6 +148,11 @@ pub struct CameraFeed {
     order: StampOrder,
     pub accepted: usize,
     pub rejected: usize,
+    /// Stamp and metres (0: unknown) of the newest accepted depth image aligned to the colour.
+    pub depth: Option<(f64, Arc<Vec<f32>>)>,
+    depth_order: StampOrder,
+    /// Ticks in a row whose colour image had no depth within `DEPTH_SKEW_S` though depth came.
+    depth_unpaired: usize,
 }
 
 impl CameraFeed {
@@ -151,6 +164,9 @@ impl CameraFeed {
             order: StampOrder::default(),
             accepted: 0,
             rejected: 0,
+            depth: None,
+            depth_order: StampOrder::default(),
+            depth_unpaired: 0,
         }
     }
 }
@@ -194,6 +210,9 @@ pub struct TickImage {
     pub stamp: f64,
     pub camera: Camera,
     pub pixels: Arc<Vec<Vec3>>,
+    /// The camera's depth aligned to `pixels` (m, 0 unknown), where one is stamped within
+    /// `DEPTH_SKEW_S` of them.
+    pub depth: Option<Arc<Vec<f32>>>,
 }
 
 /// What one tick consumes: the time it ends at, the usable images, every camera's image age
@@ -227,6 +246,7 @@ impl TickInputs {
                 stamp: time,
                 camera: *camera,
                 pixels: Arc::new(pixels),
+                depth: None,
             })
             .collect();
         Self {
@@ -242,6 +262,7 @@ impl TickInputs {
             .map(|i| View {
                 camera: i.camera,
                 image: &i.pixels,
+                depth: i.depth.as_deref().map(|d| &d[..]),
             })
             .collect()
     }
@@ -361,6 +382,34 @@ impl Inputs {
         }
     }
 
+    /// Offer camera `c`'s depth image aligned to its colour (32FC1 m, or 16UC1 in `unit` m),
+    /// received when the clock read `now`: kept as the camera's newest depth, or refused with the
+    /// reason (counted with the images).
+    pub fn offer_depth(
+        &mut self,
+        c: usize,
+        image: &Image,
+        unit: f32,
+        now: f64,
+    ) -> Result<(), Rejection> {
+        let stamp = image.header.stamp.seconds();
+        let feed = &mut self.cameras[c];
+        let name = feed.name.clone();
+        let checked = decode_depth(image, &feed.camera, unit)
+            .map_err(Rejection::BadImage)
+            .and_then(|metres| feed.depth_order.check(stamp, now).map(|_| metres));
+        match checked {
+            Ok(metres) => {
+                self.cameras[c].depth = Some((stamp, Arc::new(metres)));
+                Ok(())
+            }
+            Err(why) => {
+                self.log.images_rejected += 1;
+                Err(self.refuse(format!("camera {name} depth at {stamp:.3} s"), why))
+            }
+        }
+    }
+
     /// Offer a joint state received when the clock read `now`. Finite values of known joints are
     /// used; unknown joint names are reported once and skipped.
     pub fn offer_joint_state(&mut self, js: &JointState, now: f64) -> Result<(), Rejection> {
@@ -468,19 +517,37 @@ impl Inputs {
                 .unwrap_or_default(),
             ..Default::default()
         };
-        for (index, feed) in self.cameras.iter().enumerate() {
+        for (index, feed) in self.cameras.iter_mut().enumerate() {
             let age = feed.latest.as_ref().map(|(stamp, _)| t - stamp);
             out.ages.push((feed.name.clone(), age));
             match (&feed.latest, age) {
                 // Stamped after the tick (it ran late, or the clock went back): usable within the
                 // same margin.
                 (Some((stamp, pixels)), Some(a)) if a.abs() <= max_age => {
+                    let depth = (feed.depth.as_ref())
+                        .filter(|(d, _)| (d - stamp).abs() <= DEPTH_SKEW_S)
+                        .map(|(_, metres)| metres.clone());
+                    match (&feed.depth, &depth) {
+                        (Some((d, _)), None) => {
+                            feed.depth_unpaired += 1;
+                            if feed.depth_unpaired == DEPTH_UNPAIRED_SAY {
+                                self.log.lines.push(format!(
+                                    "camera {}: depth stamped {:.3} s from the colour for {}                                      ticks (pairs within {DEPTH_SKEW_S} s); the pose search uses                                      the colour alone there",
+                                    feed.name,
+                                    d - stamp,
+                                    DEPTH_UNPAIRED_SAY
+                                ));
+                            }
+                        }
+                        _ => feed.depth_unpaired = 0,
+                    }
                     out.images.push(TickImage {
                         index,
                         name: feed.name.clone(),
                         stamp: *stamp,
                         camera: feed.camera,
                         pixels: pixels.clone(),
+                        depth,
                     })
                 }
                 (Some(_), _) => out.stale.push(feed.name.clone()),
@@ -848,6 +915,60 @@ mod tests {
                 .any(|l| l.contains("jumped back"))
         );
         inputs.offer_image(0, &image(2.6), 10.6).unwrap();
+    }
+
+    /// A depth image in metres at `t`, 0.5 m and unknown.
+    fn depth(t: f64) -> Image {
+        Image {
+            encoding: "32FC1".into(),
+            step: 8,
+            data: [0.5f32, 0.0].iter().flat_map(|d| d.to_le_bytes()).collect(),
+            ..image(t)
+        }
+    }
+
+    #[test]
+    fn a_depth_image_goes_with_the_colour_image_of_its_stamp_and_not_with_one_a_frame_apart() {
+        let mut inputs = Inputs::new(vec![("a".into(), camera())], None);
+        inputs.offer_image(0, &image(1.0), 1.0).unwrap();
+        inputs.offer_depth(0, &depth(1.0), 0.001, 1.0).unwrap();
+        let tick = inputs.tick_inputs(1.0, 0.1);
+        let metres = tick.images[0]
+            .depth
+            .as_deref()
+            .expect("depth of the same stamp");
+        assert_eq!(metres, &vec![0.5, 0.0]);
+        assert_eq!(tick.views()[0].depth, Some(&[0.5, 0.0][..]));
+        // The next colour frame, 33 ms on, with the depth not yet there: colour alone.
+        inputs.offer_image(0, &image(1.033), 1.033).unwrap();
+        let tick = inputs.tick_inputs(1.033, 0.1);
+        assert!(tick.images[0].depth.is_none());
+        // Depth that never pairs is said once, not every tick.
+        for _ in 0..100 {
+            inputs.tick_inputs(1.033, 0.1);
+        }
+        let said = inputs.log.take_lines();
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert!(said[0].contains("colour alone"), "{}", said[0]);
+        // A depth image of another size, or one out of order, is refused with its reason and
+        // changes nothing.
+        let small = Image {
+            width: 1,
+            step: 4,
+            ..depth(1.033)
+        };
+        let why = inputs.offer_depth(0, &small, 0.001, 1.04).unwrap_err();
+        assert!(why.to_string().contains("2x1"), "{why}");
+        let late = inputs.offer_depth(0, &depth(0.9), 0.001, 1.04).unwrap_err();
+        assert!(matches!(late, Rejection::OutOfOrder { .. }), "{late:?}");
+        assert!(
+            inputs
+                .log
+                .take_lines()
+                .iter()
+                .any(|l| l.contains("camera a depth"))
+        );
+        assert!(inputs.tick_inputs(1.033, 0.1).images[0].depth.is_none());
     }
 
     #[test]

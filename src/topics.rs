@@ -16,8 +16,9 @@ pub struct NodeConfig {
     pub cameras: Vec<String>,
     pub image_topic: String,
     pub camera_info_topic: String,
-    /// Depth (32FC1 in metres, or 16UC1 in `depth_unit`s) and instance masks (mono8): read once,
-    /// to initialise a scene from RGB-D.
+    /// Depth (32FC1 in metres, or 16UC1 in `depth_unit`s) and instance masks (mono8): read to
+    /// initialise a scene from RGB-D, and depth on for the pose search where
+    /// `correct.pose_search_depth` is set.
     pub depth_topic: String,
     pub mask_topic: String,
     /// Metres per unit of 16UC1 depth (realsense2_camera publishes millimetres: 0.001).

@@ -105,6 +105,16 @@ pub struct CorrectConfig {
     /// The search also scores points this far (m) outside the object's outline, which must show
     /// the static scene (`relocate::Probe::add_ring`). 0: the object's own Gaussians only.
     pub pose_search_ring: f32,
+    /// Where a camera sends depth aligned to its colour (`node.depth_topic`, each frame with the
+    /// colour's stamp), the pose search also checks it: an object's Gaussian matches only where
+    /// the depth measured at its pixel lies within this (m) plus its size of its own, a ring
+    /// point only where nothing stands this far in front of it; a pixel something nearer than
+    /// the whole object covers counts neither way (`relocate::Probe::depth_agrees`), and the
+    /// Gaussians whose depth disagreed where the object was built are scored by colour alone
+    /// (`relocate::depth_trusted`). Colour from another renderer is biased at rest by as much
+    /// as a real offset pulls; depth is not. 0: colour alone, and the node reads depth for
+    /// initialisation only (set it at start: the subscription is chosen then).
+    pub pose_search_depth: f32,
     pub pose_gain: f32,
     /// Soft (10, not 30): the offset is measured once a tick on a grid of a third of a
     /// centimetre, so its change per second jumps by a grid step at a time, and with the pull held
@@ -340,6 +350,7 @@ impl Default for CorrectConfig {
             min_displacement: 1e-4,
             pose_search_radius: 0.04,
             pose_search_ring: 0.0,
+            pose_search_depth: 0.01,
             // MuJoCo model-error recordings, seeds 0-2 (tuning), mean error of 24 objects: 600 /
             // 40 / 3000 left a T-block on a sticky table oscillating (16.9 mm); 300 / 30 / 1500
             // held it (3.4 mm) and the rest alike. 1500 / 50 (the Gaussians' gain) diverged: a
@@ -408,6 +419,7 @@ impl CorrectConfig {
             ("max_image_age", self.max_image_age),
             ("pose_search_radius", self.pose_search_radius),
             ("pose_search_ring", self.pose_search_ring),
+            ("pose_search_depth", self.pose_search_depth),
             ("pose_gain", self.pose_gain),
             ("pose_damping", self.pose_damping),
             ("pose_integral", self.pose_integral),
@@ -473,6 +485,9 @@ impl CorrectConfig {
 pub struct View<'a> {
     pub camera: Camera,
     pub image: &'a [Vec3],
+    /// Depth aligned to `image` (m, 0 unknown), where the camera sends one with it: the pose
+    /// search scores it too (`CorrectConfig::pose_search_depth`).
+    pub depth: Option<&'a [f32]>,
 }
 
 /// What one correction did.
@@ -526,6 +541,9 @@ pub struct Corrector {
     pushes: FrictionMemory,
     /// Each shape's silhouette agreement, averaged over ticks (`AGREEMENT_SMOOTHING`).
     agreement_avg: Vec<f32>,
+    /// Per shape, which of its Gaussians' depth the pose search scores
+    /// (`relocate::depth_trusted`, taken the first time it has depth); None: not yet.
+    depth_trusted: Vec<Option<Vec<bool>>>,
     /// The camera the next iteration starts with (`cameras_per_iteration` > 0).
     turn: usize,
     /// The static scene rendered into each camera seen so far (for the occluder test).
@@ -556,6 +574,7 @@ impl Corrector {
             integrated_inv_mass: Vec::new(),
             pushes: FrictionMemory::default(),
             agreement_avg: Vec::new(),
+            depth_trusted: Vec::new(),
             turn: 0,
             backgrounds: Vec::new(),
             support: None,
@@ -846,7 +865,6 @@ impl Corrector {
                 (world.particles.position[p] - centroids[shape as usize]).cross(f);
         }
         if c.pose_search_radius > 0.0 {
-            let full: Vec<(Camera, &[Vec3])> = views.iter().map(|v| (v.camera, v.image)).collect();
             // One camera a tick measures the agreement: average over the last few.
             self.agreement_avg.resize(world.shapes.len(), 1.0);
             for (avg, a) in self.agreement_avg.iter_mut().zip(&stats.agreement) {
@@ -859,7 +877,7 @@ impl Corrector {
                 .iter()
                 .map(|a| *a < c.pose_search_below)
                 .collect();
-            let poses = self.local_poses(world, &full, c.pose_search_radius, &wanted)?;
+            let poses = self.local_poses(world, views, c.pose_search_radius, &wanted)?;
             lap(&mut stats, "pose_search", &mut clock);
             let shares: Vec<f32> = self
                 .agreement_avg
@@ -1146,8 +1164,16 @@ mod tests {
         image: &[Vec3],
     ) -> CorrectStats {
         let mut c = Corrector::new(config, RenderSettings::default()).unwrap();
-        c.correct(world, &[View { camera, image }], 1.0 / 30.0)
-            .unwrap()
+        c.correct(
+            world,
+            &[View {
+                camera,
+                image,
+                depth: None,
+            }],
+            1.0 / 30.0,
+        )
+        .unwrap()
     }
 
     /// A square plate of `mass` kg (half side `half`, m) lying at `x` along the x axis, 1 cm
@@ -1207,6 +1233,7 @@ mod tests {
         let views = [View {
             camera,
             image: &image,
+            depth: None,
         }];
         // The force (N) on the plate that the next predict step would apply after the move.
         let after_move = |forget: bool| {

@@ -2,14 +2,15 @@
 //! colour image when the clock passes its stamp, streamed from the bag as the clock advances
 //! (read ahead by `LOOKAHEAD_S` of bag time and held in stamp order, so a bag written slightly
 //! out of order replays in order, and memory is bounded by the look-ahead, not the bag). Moving
-//! cameras get their pose from `/tf` at each image's stamp. Refusals are counted and explained by
+//! cameras get their pose from `/tf` at each image's stamp. Where the pose search scores depth
+//! (`correct.pose_search_depth`), each camera's depth images are offered alike. Refusals are counted and explained by
 //! `Inputs`; the feed passes the explanations on as warnings and reports cameras that went stale.
 
 use super::Metrics;
 use super::recording::{Colour, Role, Streams};
 use crate::config::Config;
 use crate::inputs::{Inputs, TickInputs};
-use crate::msgs::{self, TfMessage};
+use crate::msgs::{self, Image, TfMessage};
 use crate::record::{BagReader, RawMessage, TfTree};
 use crate::tracker::Tracker;
 use anyhow::Result;
@@ -28,6 +29,10 @@ pub struct Feed<'a> {
     inputs: Inputs,
     /// Per camera: read images waiting for the clock, in stamp order.
     pending: Vec<VecDeque<(f64, Colour)>>,
+    /// Per camera: read depth images waiting for the clock, in stamp order; None where depth is
+    /// not used.
+    pending_depth: Option<Vec<VecDeque<(f64, Image)>>>,
+    depth_unit: f32,
     joint_cursor: usize,
     /// `/tf_static` and the `/tf` read so far (for moving cameras).
     tf: TfTree,
@@ -50,6 +55,9 @@ impl<'a> Feed<'a> {
             reader: BagReader::open(&streams.path)?.peekable(),
             inputs,
             pending: streams.cameras.iter().map(|_| VecDeque::new()).collect(),
+            pending_depth: (config.correct.pose_search_depth > 0.0)
+                .then(|| streams.cameras.iter().map(|_| VecDeque::new()).collect()),
+            depth_unit: config.node.depth_unit,
             joint_cursor: 0,
             tf: streams.tf.clone(),
             overflow_said: false,
@@ -65,6 +73,18 @@ impl<'a> Feed<'a> {
             {
                 if let Some((stamp, colour)) = self.pending[c].pop_front() {
                     self.offer(c, stamp, colour, t);
+                }
+            }
+        }
+        if let Some(pending) = &mut self.pending_depth {
+            for (c, queue) in pending.iter_mut().enumerate() {
+                while let Some((stamp, _)) = queue.front()
+                    && *stamp <= t + 1e-6
+                {
+                    if let Some((_, image)) = queue.pop_front() {
+                        // Refusals are counted and explained by `inputs`.
+                        let _ = self.inputs.offer_depth(c, &image, self.depth_unit, t);
+                    }
                 }
             }
         }
@@ -128,6 +148,23 @@ impl<'a> Feed<'a> {
                         ));
                     }
                     self.offer(c, early, colour, early);
+                }
+            }
+            Role::Depth(camera) if self.pending_depth.is_some() => {
+                let Some(c) = self.streams.cameras.iter().position(|s| s.name == camera) else {
+                    return Ok(());
+                };
+                let image: Image = msgs::from_cdr(&m.data)?;
+                let stamp = image.header.stamp.seconds();
+                if let Some(queue) = self.pending_depth.as_mut().map(|p| &mut p[c]) {
+                    let at = queue.partition_point(|p| p.0 <= stamp);
+                    queue.insert(at, (stamp, image));
+                    // Bounded as the colour: the oldest is offered early.
+                    if queue.len() > MAX_PENDING
+                        && let Some((early, image)) = queue.pop_front()
+                    {
+                        let _ = self.inputs.offer_depth(c, &image, self.depth_unit, early);
+                    }
                 }
             }
             Role::Tf if self.streams.cameras.iter().any(|c| c.moving) => {

@@ -274,6 +274,12 @@ fn inputs_status(s: &Shared) -> DiagnosticStatus {
     ));
     let unknown: Vec<String> = inputs.log.unknown_joints.iter().cloned().collect();
     values.push(kv("unknown_joints", unknown.join(",")));
+    // The cameras whose depth reaches tracking (`correct.pose_search_depth`).
+    let depth: Vec<&str> = (inputs.cameras.iter())
+        .filter(|c| c.depth.is_some())
+        .map(|c| c.name.as_str())
+        .collect();
+    values.push(kv("depth_cameras", depth.join(",")));
     let level = match rejected > 0 || !unknown.is_empty() {
         true => DiagnosticStatus::WARN,
         false => DiagnosticStatus::OK,

@@ -118,6 +118,7 @@ async fn run_async(config: Config, launch: &LaunchArgs, options: RunOptions) -> 
     let clock = super::RosClock::new(nc.use_sim_time);
     let shared = Arc::new(Mutex::new(Shared {
         clock: clock.clone(),
+        tracking_depth_unit: (config.correct.pose_search_depth > 0.0).then_some(nc.depth_unit),
         ..Default::default()
     }));
     let publishers = create_publishers(&mut node, &nc, &launch.remaps)?;

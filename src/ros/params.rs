@@ -13,9 +13,11 @@ use serde_json::Value;
 use std::path::PathBuf;
 
 /// Parameters that take effect while the node runs (applied at the next tick); every other
-/// parameter is fixed at start (the world and its robot are built from it).
+/// parameter is fixed at start (the world and its robot are built from it, and the depth
+/// subscription is kept or dropped by `correct.pose_search_depth`).
 pub fn is_live(name: &str) -> bool {
-    (name.starts_with("correct.") && name != "correct.backend") || name == "node.debug_images_every"
+    let fixed = ["correct.backend", "correct.pose_search_depth"];
+    (name.starts_with("correct.") && !fixed.contains(&name)) || name == "node.debug_images_every"
 }
 
 /// The configuration's `node.use_sim_time` is the parameter every ROS node has: `use_sim_time`.
@@ -465,6 +467,7 @@ mod tests {
     fn only_correction_and_output_rates_are_live() {
         assert!(is_live("correct.gain"));
         assert!(!is_live("correct.backend"));
+        assert!(!is_live("correct.pose_search_depth"));
         assert!(!is_live("physics.dt"));
     }
 

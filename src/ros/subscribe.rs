@@ -42,6 +42,10 @@ pub struct Shared {
     pub clock: RosClock,
     /// The URDF received on `robot.description_topic` (the newest).
     pub robot_description: Option<String>,
+    /// Where the pose search scores depth (`correct.pose_search_depth`): the depth images'
+    /// unit for 16UC1 (`node.depth_unit`), and depth goes on to `Inputs` once tracking runs.
+    /// None: depth is read for initialisation only.
+    pub tracking_depth_unit: Option<f32>,
 }
 
 pub fn topic_name(full: &str) -> Result<Name> {
@@ -67,6 +71,23 @@ fn latched_qos() -> QosProfile {
 }
 
 impl Shared {
+    /// A depth image: kept for initialisation before tracking, offered to `Inputs` after where
+    /// tracking scores depth.
+    fn on_depth(&mut self, camera: &str, img: Image) {
+        match (&mut self.inputs, self.tracking_depth_unit) {
+            (Some(inputs), Some(unit)) => {
+                if let Some(k) = inputs.camera_index(camera) {
+                    let now = self.clock.now().unwrap_or(f64::NAN);
+                    let _ = inputs.offer_depth(k, &img, unit, now);
+                }
+            }
+            (Some(_), None) => {}
+            (None, _) => {
+                self.first_depth.insert(camera.to_string(), img);
+            }
+        }
+    }
+
     fn on_image(&mut self, camera: &str, img: Image) {
         match &mut self.inputs {
             Some(inputs) => {
@@ -310,26 +331,28 @@ pub fn subscribe(
                 s.resolve_camera_poses(&frames);
             },
         )?;
-        // Depth and masks: only the first frames, for initialisation; dropped once tracking runs.
-        for (template, depth) in [(&nc.depth_topic, true), (&nc.mask_topic, false)] {
-            let c = cam.clone();
-            s.subscribe_until(
-                &topic(template),
-                IMAGE,
-                sensor_qos(),
-                move |s: &mut Shared, img| {
-                    if s.inputs.is_none() {
-                        let first = if depth {
-                            &mut s.first_depth
-                        } else {
-                            &mut s.first_masks
-                        };
-                        first.insert(c.clone(), img);
-                    }
-                },
-                |s| s.inputs.is_some(),
-            )?;
-        }
+        // Masks: only the first frames, for initialisation; dropped once tracking runs. Depth
+        // alike, unless tracking scores it (`Shared::on_depth`).
+        let c = cam.clone();
+        s.subscribe_until(
+            &topic(&nc.depth_topic),
+            IMAGE,
+            sensor_qos(),
+            move |s: &mut Shared, img| s.on_depth(&c, img),
+            |s| s.inputs.is_some() && s.tracking_depth_unit.is_none(),
+        )?;
+        let c = cam.clone();
+        s.subscribe_until(
+            &topic(&nc.mask_topic),
+            IMAGE,
+            sensor_qos(),
+            move |s: &mut Shared, img| {
+                if s.inputs.is_none() {
+                    s.first_masks.insert(c.clone(), img);
+                }
+            },
+            |s| s.inputs.is_some(),
+        )?;
     }
     let joint_states = ("sensor_msgs", "JointState");
     s.subscribe(

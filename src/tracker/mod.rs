@@ -15,7 +15,7 @@ pub use observer::{Observer, Tick};
 pub use table_edge::{OFF_TABLE_ADVICE, TableEdge};
 
 use crate::config::Config;
-use crate::correct::{CorrectConfig, CorrectStats, Corrector, Plant, Support, relocate};
+use crate::correct::{CorrectConfig, CorrectStats, Corrector, Plant, Support, View, relocate};
 use crate::inputs::{Inputs, TickInputs};
 use crate::math::Pose;
 use crate::physics::{PhysicsConfig, Solver, Touched};
@@ -162,15 +162,13 @@ impl Tracker {
             let mut stats = corrector.correct(&mut self.scene.world, &views, dt)?;
             let time = self.scene.world.time;
             report.track_events = self.health.update(time, &stats.agreement);
-            let full: Vec<(Camera, &[glam::Vec3])> =
-                views.iter().map(|v| (v.camera, v.image)).collect();
             let searching = Instant::now();
             let relocated = Self::relocate_lost(
                 corrector,
                 &mut self.scene.world,
                 &mut self.health,
                 (&mut self.well_tracked, &mut self.searched_at, &self.start),
-                &full,
+                &views,
                 &stats.agreement,
             )?;
             for event in &relocated {
@@ -198,7 +196,7 @@ impl Tracker {
         world: &mut World,
         health: &mut TrackHealth,
         (well_tracked, searched_at, start): (&mut Vec<Option<Pose>>, &mut Vec<f64>, &[Pose]),
-        views: &[(Camera, &[glam::Vec3])],
+        views: &[View],
         agreement: &[Option<f32>],
     ) -> Result<Vec<TrackEvent>> {
         let n = world.shapes.len();

@@ -627,34 +627,78 @@ def test_fr3_joint_names_drive_the_panda_urdf_with_a_prefix_parameter(recording,
             assert inputs["unknown_joints"] == "", inputs
 
 
-def test_depth_and_mask_subscriptions_end_once_tracking_runs(recording, ros):
-    """Depth and masks are read once, to initialise: once tracking runs their subscriptions are
-    dropped, so the node no longer receives or deserialises them. Garbage sent on a depth topic
-    afterwards is never seen, while the same garbage on CameraInfo (still subscribed) is counted
-    as malformed."""
-    node = rclpy.create_node("pegs_test_unsubscribe")
+def run_with_garbage_on_depth(recording, log_name, extra=(), depth_frames=0):
+    """Play the recording to the node (`extra` ROS args); once tracking runs, send `depth_frames`
+    valid depth images of cam0 (32FC1, 0.8 m, stamped now) and garbage on cam0's depth and mask
+    topics and on cam1's CameraInfo (still subscribed). The node's log, the last `pegs: inputs`
+    diagnostic values and the count of object messages."""
+    node = rclpy.create_node(f"pegs_test_{log_name}")
     recorder = Recorder(node)
-    proc, stats_path = start_node(recording, "unsubscribe")
+    proc, stats_path = start_node(recording, log_name, extra)
     player = Player(node, str(recording / "recording"))
     depth = "/camera/cam0/aligned_depth_to_color/image_raw"
+    mask = "/camera/cam0/mask/image_raw"
     info = "/camera/cam1/color/camera_info"
     wait_for_discovery(node, player)
     player.begin(time.time() + 0.2)
     spin_for(node, 3.0, player)
-    garbage_depth = node.create_publisher(Image, depth, SENSOR)
+    depth_pub = node.create_publisher(Image, depth, SENSOR)
+    mask_pub = node.create_publisher(Image, mask, SENSOR)
     spin_for(node, 1.0, player)
+    metres = struct.pack("<f", 0.8) * (160 * 90)
+    for _ in range(depth_frames):
+        img = Image(height=90, width=160, encoding="32FC1", is_bigendian=0, step=160 * 4, data=metres)
+        img.header.frame_id = "cam0_color_optical_frame"
+        depth_pub.publish(set_stamp(img, time.time()))
+        spin_for(node, 0.05, player)
     for _ in range(10):
-        garbage_depth.publish(b"\x00\x01\x00\x00\x07")
+        depth_pub.publish(b"\x00\x01\x00\x00\x07")
+        mask_pub.publish(b"\x00\x01\x00\x00\x07")
         player.publishers[info].publish(b"\x00\x01\x00\x00\x07")
         spin_for(node, 0.05, player)
-    spin_for(node, 1.0, player)
+    spin_for(node, 1.5, player)
     stop_node(proc, stats_path)
     node.destroy_node()
-    log = (recording / "unsubscribe.log").read_text()
-    assert recorder.count("objects") > 5, "tracking ran"
+    reports = recorder.got.get("diagnostics", [])
+    inputs = {}
+    for _, m in reports:
+        for st in m.status:
+            if st.name == "pegs: inputs" and st.values:
+                inputs = {v.key: v.value for v in st.values}
+    return (recording / f"{log_name}.log").read_text(), inputs, recorder.count("objects")
+
+
+def test_depth_reaches_tracking_and_masks_end_once_tracking_runs(recording, ros):
+    """With depth in the pose search (`correct.pose_search_depth`, on by default) the depth
+    subscription stays once tracking runs: a valid depth image of cam0 reaches the tracker (the
+    inputs diagnostic names cam0 among `depth_cameras`) and garbage on it is counted as
+    malformed, as on CameraInfo. Masks are read once, to initialise: their subscription ends and
+    garbage sent on it afterwards is never seen."""
+    mask = "/camera/cam0/mask/image_raw"
+    depth = "/camera/cam0/aligned_depth_to_color/image_raw"
+    log, inputs, objects = run_with_garbage_on_depth(recording, "depth_on", depth_frames=5)
+    assert objects > 5, "tracking ran"
+    assert "cam0" in inputs.get("depth_cameras", "").split(","), inputs
+    assert f"{mask}: no longer needed; unsubscribed" in log, log
+    assert f"{mask}: malformed message" not in log, "the mask subscription still receives"
+    assert f"{depth}: malformed message" in log, "the depth subscription no longer receives"
+    assert f"{depth}: no longer needed" not in log, log
+
+
+def test_without_depth_in_tracking_its_subscription_ends_once_tracking_runs(recording, ros):
+    """With `correct.pose_search_depth` 0 depth is read once, to initialise, like the masks: once
+    tracking runs the subscription is dropped, so the node no longer receives or deserialises
+    it. Garbage sent on the depth topic afterwards is never seen, while the same garbage on
+    CameraInfo (still subscribed) is counted as malformed."""
+    depth = "/camera/cam0/aligned_depth_to_color/image_raw"
+    info = "/camera/cam1/color/camera_info"
+    log, inputs, objects = run_with_garbage_on_depth(
+        recording, "depth_off", ["-p", "correct.pose_search_depth:=0.0"], depth_frames=5)
+    assert objects > 5, "tracking ran"
     assert f"{depth}: no longer needed; unsubscribed" in log, log
     assert f"{info}: malformed message" in log, "garbage reaches a subscribed topic"
     assert f"{depth}: malformed message" not in log, "the depth subscription still receives"
+    assert inputs.get("depth_cameras") == "", inputs
 
 
 def test_diagnostics_say_what_the_node_waits_for_before_tracking(recording, ros):
