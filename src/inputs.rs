@@ -1,7 +1,8 @@
 //! What a tick consumes, gathered from the outside world: the newest usable image of every camera
-//! (with its aligned depth where one of the same stamp came), and the robot's joint trajectory. Both `pegs replay` and `pegs node` feed observations through
-//! here, so the checks on everything that comes from outside (encodings, sizes, stamps, non-finite
-//! joints, unknown joints) and the choice of data for a tick are one code path.
+//! (with its aligned depth where one of the same stamp came), and the robot's joint trajectory.
+//! Both `pegs replay` and `pegs node` feed observations through here, so the checks on everything
+//! that comes from outside (encodings, sizes, stamps, non-finite joints, unknown joints) and the
+//! choice of data for a tick are one code path.
 //!
 //! This module owns validation and buffering only; it never touches the world or the tracker.
 
@@ -532,7 +533,9 @@ impl Inputs {
                             feed.depth_unpaired += 1;
                             if feed.depth_unpaired == DEPTH_UNPAIRED_SAY {
                                 self.log.lines.push(format!(
-                                    "camera {}: depth stamped {:.3} s from the colour for {}                                      ticks (pairs within {DEPTH_SKEW_S} s); the pose search uses                                      the colour alone there",
+                                    "camera {}: depth stamped {:.3} s from the colour for {} \
+                                     ticks (pairs within {DEPTH_SKEW_S} s); the pose search \
+                                     uses the colour alone there",
                                     feed.name,
                                     d - stamp,
                                     DEPTH_UNPAIRED_SAY

@@ -3,8 +3,9 @@
 //! (read ahead by `LOOKAHEAD_S` of bag time and held in stamp order, so a bag written slightly
 //! out of order replays in order, and memory is bounded by the look-ahead, not the bag). Moving
 //! cameras get their pose from `/tf` at each image's stamp. Where the pose search scores depth
-//! (`correct.pose_search_depth`), each camera's depth images are offered alike. Refusals are counted and explained by
-//! `Inputs`; the feed passes the explanations on as warnings and reports cameras that went stale.
+//! (`correct.pose_search_depth`), each camera's depth images are offered alike. Refusals are
+//! counted and explained by `Inputs`; the feed passes the explanations on as warnings and reports
+//! cameras that went stale.
 
 use super::Metrics;
 use super::recording::{Colour, Role, Streams};

@@ -642,6 +642,10 @@ def run_with_garbage_on_depth(recording, log_name, extra=(), depth_frames=0):
     wait_for_discovery(node, player)
     player.begin(time.time() + 0.2)
     spin_for(node, 3.0, player)
+    # A slow machine may start tracking late: the depth must come once it runs.
+    end = time.time() + 10.0
+    while time.time() < end and recorder.count("objects") == 0:
+        spin_for(node, 0.2, player)
     depth_pub = node.create_publisher(Image, depth, SENSOR)
     mask_pub = node.create_publisher(Image, mask, SENSOR)
     spin_for(node, 1.0, player)
