@@ -388,8 +388,7 @@ impl Probe {
                 if visible.is_some_and(|v| !v[i]) {
                     continue;
                 }
-                let point = pose.transform_point(*b);
-                let Some(k) = f.camera.pixel_of(point) else {
+                let Some((k, z)) = f.camera.pixel_and_depth_of(pose.transform_point(*b)) else {
                     continue;
                 };
                 let (o, bg) = (f.image[k], f.background[k]);
@@ -405,7 +404,6 @@ impl Probe {
                 let trusted = self.depth_trusted.get(i).copied().unwrap_or(true);
                 let depth = match f.depth {
                     Some(d) if self.depth > 0.0 && trusted => {
-                        let z = f.camera.world_to_camera.transform_point(point).z;
                         self.depth_agrees(d[k], z, self.size[i], *ring)
                     }
                     _ => Depth::Agrees,
@@ -506,11 +504,10 @@ fn depth_trusted(
         let Some(d) = f.depth else { continue };
         let seen = probe.seen_by(&pose, f.camera);
         for (i, b) in probe.body.iter().enumerate() {
-            let point = pose.transform_point(*b);
-            let Some(k) = f.camera.pixel_of(point).filter(|_| seen[i]) else {
+            let projected = f.camera.pixel_and_depth_of(pose.transform_point(*b));
+            let Some((k, z)) = projected.filter(|_| seen[i]) else {
                 continue;
             };
-            let z = f.camera.world_to_camera.transform_point(point).z;
             let depth = probe.depth_agrees(d[k], z, probe.size[i], false);
             if matches!(depth, Depth::Disagrees | Depth::Nearer) {
                 trusted[i] = false;
@@ -733,14 +730,15 @@ impl Corrector {
                 }
                 let here = world.shapes.pose[s];
                 let frames = frames_seeing(views, &backgrounds, here.translation);
-                let trusted = match (search.depth > 0.0, trusted.get_mut(s)) {
-                    (true, Some(t)) => {
+                let trusted = match search.depth > 0.0 {
+                    true => {
+                        let t = &mut trusted[s];
                         if t.is_none() {
                             *t = depth_trusted(world, s as ShapeId, here, &frames, search.depth);
                         }
                         t.as_deref()
                     }
-                    _ => None,
+                    false => None,
                 };
                 search_around(
                     world,

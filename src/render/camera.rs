@@ -75,11 +75,16 @@ impl Camera {
     /// The row-major index of the pixel a world point projects into; None behind the camera or
     /// outside the image.
     pub fn pixel_of(&self, p: Vec3) -> Option<usize> {
+        self.pixel_and_depth_of(p).map(|(k, _)| k)
+    }
+
+    /// `pixel_of`, with the point's depth (m, along the optical axis) from the same projection.
+    pub fn pixel_and_depth_of(&self, p: Vec3) -> Option<(usize, f32)> {
         let (u, v, depth) = self.project(p);
         let inside = depth > 0.0
             && (0.0..self.width as f32).contains(&u)
             && (0.0..self.height as f32).contains(&v);
-        inside.then(|| v as usize * self.width as usize + u as usize)
+        inside.then(|| (v as usize * self.width as usize + u as usize, depth))
     }
 
     pub fn rotation(&self) -> Mat3 {
