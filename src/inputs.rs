@@ -535,7 +535,9 @@ impl Inputs {
                                 self.log.lines.push(format!(
                                     "camera {}: depth stamped {:.3} s from the colour for {} \
                                      ticks (pairs within {DEPTH_SKEW_S} s); the pose search \
-                                     uses the colour alone there",
+                                     uses the colour alone there. Publish aligned depth with \
+                                     the colour's stamp (realsense2_camera: enable_sync), or set \
+                                     correct.pose_search_depth: 0",
                                     feed.name,
                                     d - stamp,
                                     DEPTH_UNPAIRED_SAY
