@@ -705,20 +705,18 @@ fn without_phantoms(
     // crossbar in front of its inner corner) hides it.
     let hidden_by_itself = |b: Vec3| {
         let p = pose.transform_point(b);
-        let mut views = frames
-            .iter()
-            .filter_map(|f| Some((f, f.camera.pixel_of(p)?)));
-        let mut any = false;
-        let all = views.all(|(f, k)| {
-            any = true;
-            let z = f.camera.project(p).2;
-            f.labels[k] == label
-                && f.point(k).is_some_and(|q| {
-                    f.depth[k] < z - tolerance
-                        && to_body.transform_point(q).truncate().distance(b.truncate()) > reach
-                })
-        });
-        any && all
+        let mut views = (frames.iter())
+            .filter_map(|f| Some((f, f.camera.pixel_of(p)?)))
+            .peekable();
+        views.peek().is_some()
+            && views.all(|(f, k)| {
+                let z = f.camera.project(p).2;
+                f.labels[k] == label
+                    && f.point(k).is_some_and(|q| {
+                        f.depth[k] < z - tolerance
+                            && to_body.transform_point(q).truncate().distance(b.truncate()) > reach
+                    })
+            })
     };
     (kept.iter().copied())
         .filter(|b| {
@@ -1142,7 +1140,7 @@ mod tests {
     /// and a row of 1 cm cells 6.5 mm past its far face, within two particle radii of the depth
     /// points on its top as a T-block's inner corner is of its crossbar and stem. The lower cells
     /// of the row are hidden by the box itself, at a point well away from them: they go. The top
-    /// one the camera sees past (carving's to judge) and the box's own cells stay.
+    /// ones the camera sees past (carving's to judge) and the box's own cells stay.
     #[test]
     fn material_only_the_object_itself_hides_beside_it_is_not_built() {
         let pose = Pose::new(Vec3::new(0.5, 0.1, 0.015), Quat::from_rotation_z(0.4));
@@ -1165,12 +1163,15 @@ mod tests {
             );
             let (t0, t1) = ((lo - o) / d, (hi - o) / d);
             let (near, far) = (t0.min(t1).max_element(), t0.max(t1).min_element());
-            if near <= far && near > 0.0 {
-                points.push(eye + ray * near);
-                (depth.push(near), labels.push(1));
-            } else {
-                (depth.push(-eye.z / ray.z), labels.push(0));
-            }
+            let (measured, label) = match near <= far && near > 0.0 {
+                true => {
+                    points.push(eye + ray * near);
+                    (near, 1)
+                }
+                false => (-eye.z / ray.z, 0),
+            };
+            depth.push(measured);
+            labels.push(label);
         }
         let colour = vec![Vec3::ONE; depth.len()];
         let mut lattice = Vec::new();
