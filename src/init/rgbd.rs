@@ -1046,6 +1046,21 @@ mod tests {
         );
     }
 
+    /// 1 cm cells filling a 4 x 3 x 3 cm box centred on its body origin (x 4, y 3, z 3: 36), and a
+    /// row of 12 more beside it at each body y of `rows`, in the same order as the box's: by x,
+    /// then height, then y.
+    fn box_lattice_and_rows(rows: &[f32]) -> Vec<Vec3> {
+        let mut lattice = Vec::new();
+        for i in 0..4 {
+            for k in 0..3 {
+                let (x, z) = (-0.015 + i as f32 * 0.01, -0.01 + k as f32 * 0.01);
+                let ys = [-0.01, 0.0, 0.01].iter().chain(rows);
+                lattice.extend(ys.map(|y| Vec3::new(x, *y, z)));
+            }
+        }
+        lattice
+    }
+
     /// A 4 x 3 x 3 cm box seen from straight above, a plate (no object's label) 8 cm over the
     /// table hiding a strip 2 cm wide beside it, as the robot's hand hides the table beside an
     /// object it is about to push; a lattice of 1 cm cells over the box and the strip (carving
@@ -1081,15 +1096,8 @@ mod tests {
             labels.push(l);
         }
         let colour = vec![Vec3::ONE; depth.len()];
-        let mut lattice = Vec::new();
-        for i in 0..4 {
-            for k in 0..3 {
-                let (x, z) = (-0.015 + i as f32 * 0.01, -0.01 + k as f32 * 0.01);
-                lattice.extend([-0.01, 0.0, 0.01].map(|y| Vec3::new(x, y, z)));
-                // Beside the box, 6.5 and 16.5 mm past its +y face.
-                lattice.extend([0.0215, 0.0315].map(|y| Vec3::new(x, y, z)));
-            }
-        }
+        // Beside the box, 6.5 and 16.5 mm past its +y face.
+        let lattice = box_lattice_and_rows(&[0.0215, 0.0315]);
         let in_box = |kept: &[Vec3]| kept.iter().all(|b| inside(*b, box_x, box_y));
         let built = |points: &[Vec3], depth: &[f32]| {
             let frame = RgbdFrame {
@@ -1174,13 +1182,7 @@ mod tests {
             labels.push(label);
         }
         let colour = vec![Vec3::ONE; depth.len()];
-        let mut lattice = Vec::new();
-        for i in 0..4 {
-            for k in 0..3 {
-                let (x, z) = (-0.015 + i as f32 * 0.01, -0.01 + k as f32 * 0.01);
-                lattice.extend([-0.01, 0.0, 0.01, 0.0215].map(|y| Vec3::new(x, y, z)));
-            }
-        }
+        let lattice = box_lattice_and_rows(&[0.0215]);
         let frame = RgbdFrame {
             camera,
             colour: &colour,
