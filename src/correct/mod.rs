@@ -389,9 +389,13 @@ impl Default for CorrectConfig {
             // and the concealed recordings moved by at most 0.24 mm (the hidden box, 10.65 ->
             // 10.89), the real T-block's IoU by at most 0.004.
             pose_dead_zone: 0.003,
-            pose_nudge: 0.0,
-            pose_nudge_velocity: 0.0,
-            pose_nudge_beyond: 0.003,
+            // On issue 25's model errors (MuJoCo seeds 2300-2305, 2400-2403, 2500-2503, 112
+            // objects; the settings were chosen on earlier seeds): objects meeting its bar
+            // (mean under 5 mm, p95 under 10) 93 -> 99, p95 >= 10 mm 18 -> 9, the controls as
+            // before. README: "A nudge where nothing in the model pushes".
+            pose_nudge: 0.5,
+            pose_nudge_velocity: 0.5,
+            pose_nudge_beyond: 0.006,
             max_image_age: 0.07,
             use_roi: true,
             roi_margin_px: 12.0,

@@ -343,7 +343,10 @@ impl Probe {
 
     /// Per camera, the share of the Gaussians whose pixel is closer to their colour than to the
     /// static scene, of all of them (one that falls outside the frame counts against, so a
-    /// candidate cannot score by leaving the view); the middle camera's share. None with fewer
+    /// candidate cannot score by leaving the view); the middle camera's share. With occluders
+    /// left out, a camera where more of the Gaussians fall on pixels nothing in the model
+    /// explains than are counted (an unmodelled arm covers most of the object) has no share:
+    /// the share of the few left, as likely 0 as 1, could be the middle one. None with fewer
     /// than `agreement::MIN_VISIBLE` in view anywhere.
     fn score(&self, pose: &Pose, frames: &[Frame]) -> Option<f32> {
         self.score_unless(pose, frames, |_| false)
@@ -362,6 +365,7 @@ impl Probe {
         let mut seen_anywhere = 0;
         for (n, f) in frames.iter().enumerate() {
             let (mut seen, mut matched, mut behind) = (0usize, 0usize, 0usize);
+            let mut unexplained = 0usize;
             let visible = self.seen.get(n);
             let in_view = visible.map_or(self.body.len(), |v| v.iter().filter(|s| **s).count());
             for (i, ((b, c), ring)) in self
@@ -379,6 +383,7 @@ impl Probe {
                         in_view,
                         left: self.body.len() - i,
                         occluders: self.occluders.is_some(),
+                        unexplained,
                     };
                     let later = frames.len() - n - 1;
                     if beaten(score_bound(&shares, counted.share_bound(), later)) {
@@ -395,6 +400,7 @@ impl Probe {
                 if let Some((palette, threshold)) = &self.occluders
                     && !super::explained(o, bg, palette, *threshold)
                 {
+                    unexplained += 1;
                     continue;
                 }
                 if self.covered.get(n).is_some_and(|c| c[k]) {
@@ -428,7 +434,8 @@ impl Probe {
                 Some(_) => seen,
                 None => in_view - behind,
             };
-            if all > 0 {
+            let covered = self.occluders.is_some() && unexplained > seen;
+            if all > 0 && !covered {
                 shares.push(matched as f32 / all as f32);
             }
         }
@@ -536,6 +543,8 @@ struct Counted {
     in_view: usize,
     left: usize,
     occluders: bool,
+    /// With occluders, the Gaussians on unexplained pixels so far.
+    unexplained: usize,
 }
 
 impl Counted {
@@ -546,8 +555,11 @@ impl Counted {
     fn share_bound(&self) -> Option<f32> {
         let (m, l) = (self.matched, self.left);
         if self.occluders {
-            // Left-out pixels count neither way: (matched + a) / (seen + a + unmatched).
-            return (self.seen > 0).then(|| (m + l) as f32 / (self.seen + l) as f32);
+            // Left-out pixels count neither way: (matched + a) / (seen + a + unmatched). The
+            // camera may still drop out, covered, unless it counts as many as could yet be
+            // left out.
+            let kept = self.seen > 0 && self.seen >= self.unexplained + l;
+            return kept.then(|| (m + l) as f32 / (self.seen + l) as f32);
         }
         let all = self.in_view.checked_sub(self.behind)?;
         let fewest = all.checked_sub(l).filter(|&a| a > 0)?;
@@ -1219,6 +1231,53 @@ mod tests {
             left_out > 0.95,
             "left out, the box is where it is: {left_out}"
         );
+    }
+
+    #[test]
+    fn a_camera_an_unmodelled_body_mostly_covers_has_no_say_in_a_pose_score() {
+        // Three cameras around a blue box; an unmodelled arm covers all of the third's image
+        // but the pixels of three of the box's Gaussians at a candidate pose (unexplained
+        // pixels count neither way). Its share of those few would be 1 and, the middle of
+        // three, lift the score to the better of the other two cameras'. With no share for a
+        // camera whose Gaussians fall mostly on unexplained pixels, the candidate scores as by
+        // the two that see the box, the lower of their shares.
+        let (world, s) = slab(false, false);
+        let mut views = Seen::around(&world);
+        let here = world.shapes.pose[s as usize];
+        let probe = Probe::of(&world, s, 0.1);
+        let alone = |pose: &Pose, v: &Seen| probe.score(pose, &[v.frame()]);
+        let pose = [(0.004, 0.0, 0.0), (0.006, 0.003, 0.1), (0.0, 0.008, 0.2)]
+            .into_iter()
+            .map(|(dx, dy, yaw)| candidate(&here, dx, dy, yaw))
+            .find(|p| match (alone(p, &views[0]), alone(p, &views[1])) {
+                (Some(a), Some(b)) => (a - b).abs() > 0.05,
+                _ => false,
+            })
+            .expect("a candidate the two cameras score apart");
+        let (a, b) = (alone(&pose, &views[0]), alone(&pose, &views[1]));
+        let arm = Vec3::splat(0.6);
+        let covered = &mut views[2];
+        let kept: Vec<usize> = (probe.body.iter().step_by(7).take(3))
+            .filter_map(|b| covered.camera.pixel_and_depth_of(pose.transform_point(*b)))
+            .map(|(k, _)| k)
+            .collect();
+        assert_eq!(
+            kept.len(),
+            3,
+            "the three kept Gaussians are in the third view"
+        );
+        covered.image.iter_mut().for_each(|p| *p = arm);
+        kept.iter().for_each(|&k| covered.image[k] = BLUE);
+        assert_eq!(
+            alone(&pose, &views[2]),
+            None,
+            "the third camera alone says nothing"
+        );
+        let frames: Vec<Frame> = views.iter().map(Seen::frame).collect();
+        let three = probe.score(&pose, &frames);
+        let two = probe.score(&pose, &frames[..2]);
+        assert_eq!(three, two, "cameras {a:?}, {b:?}");
+        assert_eq!(three, a.zip(b).map(|(a, b)| a.min(b)));
     }
 
     /// A blue slab 5 cm wide and `length` long, one layer of particles 5 mm apart, 2 cm above
