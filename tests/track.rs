@@ -106,16 +106,21 @@ fn an_object_started_3cm_and_20_degrees_off_is_pulled_onto_its_true_pose_within_
     let with = track("resting_box", offset, 60, true);
     let without = track("resting_box", offset, 60, false);
     eprintln!(
-        "resting box from 3 cm / 20 deg: error at 0 s {:.1} mm, at 2 s {:.2} mm with visual forces, {:.1} mm physics only",
+        "resting box from 3 cm / 20 deg: error after the first tick {:.1} mm physics only, {:.1} mm with visual forces; at 2 s {:.2} mm with, {:.1} mm physics only",
+        without[0] * 1e3,
         with[0] * 1e3,
         with[59] * 1e3,
         without[59] * 1e3
     );
-    assert!(with[0] > 0.025, "the start offset must be real");
-    // Pulled on: under 6 mm and a fifth of the start error (measured 2.3 mm; without the
-    // derivative term it stalls near 4.7 mm against static friction, see src/correct/mod.rs).
+    // The start error as the first tick leaves it without visual forces (with them, the nudge
+    // has already taken part of it: 22.2 mm).
+    let start = without[0];
+    assert!(start > 0.025, "the start offset must be real");
+    // Pulled on: under 6 mm and a fifth of the start error (measured 2.3 mm with the pull alone,
+    // 0.97 mm with the nudge; without the derivative term it stalls near 4.7 mm against static
+    // friction, see src/correct/mod.rs).
     assert!(
-        with[59] < 0.006 && with[59] < 0.2 * with[0],
+        with[59] < 0.006 && with[59] < 0.2 * start,
         "not pulled on within 2 s: {} m",
         with[59]
     );
