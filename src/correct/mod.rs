@@ -392,7 +392,7 @@ impl Default for CorrectConfig {
             // On issue 25's model errors (MuJoCo seeds 2300-2305, 2400-2403, 2500-2503, 112
             // objects; the settings were chosen on earlier seeds): objects meeting its bar
             // (mean under 5 mm, p95 under 10) 93 -> 99, p95 >= 10 mm 18 -> 9, the controls as
-            // before. README: "A nudge where nothing in the model pushes".
+            // before. README: "On by default" under "When the model is wrong".
             pose_nudge: 0.5,
             pose_nudge_velocity: 0.5,
             pose_nudge_beyond: 0.006,

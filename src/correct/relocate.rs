@@ -434,8 +434,8 @@ impl Probe {
                 Some(_) => seen,
                 None => in_view - behind,
             };
-            let covered = self.occluders.is_some() && unexplained > seen;
-            if all > 0 && !covered {
+            let hidden_by_unmodelled = self.occluders.is_some() && unexplained > seen;
+            if all > 0 && !hidden_by_unmodelled {
                 shares.push(matched as f32 / all as f32);
             }
         }
