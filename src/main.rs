@@ -1,6 +1,6 @@
 //! The `pegs` command line. Each subcommand is a thin shell over the library.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use pegs::config::Config;
 use std::path::{Path, PathBuf};
@@ -314,6 +314,14 @@ struct TableScenarioArgs {
     pub width: u32,
     #[arg(long, default_value_t = 180)]
     pub height: u32,
+    /// Also replay each scenario from this many more starts as far off as the table's, in
+    /// directions spread evenly around the true pose (a column of their mean and range).
+    #[arg(long, default_value_t = 0)]
+    pub starts: usize,
+    /// A parameter set in every scenario's config, by its path (`correct.pose_nudge=0`), to
+    /// make the table of a setting without a build; repeatable.
+    #[arg(long = "set", value_name = "PATH=VALUE")]
+    pub settings: Vec<String>,
     #[arg(long)]
     pub readme: Option<PathBuf>,
 }
@@ -717,9 +725,35 @@ fn scenario_table(a: TableScenarioArgs) -> Result<()> {
         out,
         width,
         height,
+        starts,
+        settings,
         readme,
     } = a;
-    let table = pegs::evaluate::scenario_table::run(&out, width, height)?;
+    let mut parsed = Vec::new();
+    for setting in &settings {
+        let Some((path, value)) = setting.split_once('=') else {
+            anyhow::bail!("--set {setting:?}: expected PATH=VALUE, e.g. correct.pose_nudge=0");
+        };
+        let value = serde_json::from_str(value)
+            .unwrap_or_else(|_| serde_json::Value::String(value.to_string()));
+        parsed.push((path.to_string(), value));
+    }
+    let adjust = |mut config: pegs::config::Config| {
+        for (path, value) in &parsed {
+            config = pegs::ros::params::with_parameter(&config, path, value.clone())?;
+        }
+        Ok(config)
+    };
+    // A setting that names no parameter, or the wrong type, stops the table before any scenario.
+    adjust(pegs::config::Config::default()).context("--set")?;
+    let opts = pegs::evaluate::scenario_table::TableOptions {
+        width,
+        height,
+        starts,
+        adjust: &adjust,
+        changed: &settings,
+    };
+    let table = pegs::evaluate::scenario_table::run(&out, &opts)?;
     println!("{table}");
     write_readme(
         readme,

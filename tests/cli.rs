@@ -209,3 +209,29 @@ fn a_bad_config_is_a_clear_error_not_a_panic() {
     );
     assert!(!err.contains("panicked"), "{err}");
 }
+
+#[test]
+fn a_scenario_table_setting_that_names_no_parameter_stops_it_before_any_scenario() {
+    let dir = temp_dir("tableset");
+    for (setting, expected) in [
+        (
+            "correct.no_such_gain=1",
+            "no parameter 'correct.no_such_gain'",
+        ),
+        ("correct.gain", "expected PATH=VALUE"),
+        ("correct.gain=-1", "correct.gain"),
+    ] {
+        let o = pegs()
+            .args(["scenario", "table", "--out"])
+            .arg(&dir)
+            .args(["--set", setting])
+            .output()
+            .unwrap();
+        assert!(!o.status.success(), "{setting} was accepted");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(expected), "{setting}: unhelpful error: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        // Nothing was generated.
+        assert!(!dir.join("resting_box").exists(), "{setting}");
+    }
+}
