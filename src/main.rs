@@ -729,23 +729,19 @@ fn scenario_table(a: TableScenarioArgs) -> Result<()> {
         settings,
         readme,
     } = a;
-    let mut parsed = Vec::new();
+    // Applied as the node applies `-p PATH:=VALUE` at launch (`ros::params::launch_config`).
+    let mut overrides = pegs::ros::params::LaunchArgs::default();
     for setting in &settings {
         let Some((path, value)) = setting.split_once('=') else {
             anyhow::bail!("--set {setting:?}: expected PATH=VALUE, e.g. correct.pose_nudge=0");
         };
-        let value = serde_json::from_str(value)
-            .unwrap_or_else(|_| serde_json::Value::String(value.to_string()));
-        parsed.push((path.to_string(), value));
+        overrides
+            .overrides
+            .push((path.to_string(), value.to_string()));
     }
-    let adjust = |mut config: pegs::config::Config| {
-        for (path, value) in &parsed {
-            config = pegs::ros::params::with_parameter(&config, path, value.clone())?;
-        }
-        Ok(config)
-    };
+    let adjust = |config: Config| pegs::ros::params::launch_config(config, &overrides);
     // A setting that names no parameter, or the wrong type, stops the table before any scenario.
-    adjust(pegs::config::Config::default()).context("--set")?;
+    adjust(Config::default()).context("--set")?;
     let opts = pegs::evaluate::scenario_table::TableOptions {
         width,
         height,
