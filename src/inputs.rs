@@ -495,22 +495,29 @@ impl Inputs {
     /// The robot trajectory to drive the tick ending at `t`: recent samples, extended linearly a
     /// little past the last one so a tick is not driven by a stale hold. None without a robot or
     /// before the first joint state.
-    fn trajectory_for(&mut self, t: f64) -> Option<JointTrajectory> {
+    fn trajectory_for(&mut self, from: f64, t: f64) -> Option<JointTrajectory> {
         let joints = self.joints.as_mut()?;
         if joints.trajectory.is_empty() {
             return None;
         }
-        // Two ticks of history are enough to interpolate this tick.
-        joints.trajectory.forget_before(t - 1.0);
+        // Two ticks of history are enough to interpolate one tick; a second is kept, and back to
+        // `from` where the world's clock stands further behind (a tick that catches up).
+        joints.trajectory.forget_before(from.min(t - 1.0));
         Some(joints.trajectory.extended(t, MAX_JOINT_EXTRAPOLATION_S))
     }
 
     /// What the tick ending at `t` consumes: every camera's newest image no older than `max_age`,
     /// the joint trajectory, and the joint samples accepted since the last call.
     pub fn tick_inputs(&mut self, t: f64, max_age: f64) -> TickInputs {
+        self.tick_inputs_from(t - 1.0, t, max_age)
+    }
+
+    /// As `tick_inputs`, with the joint trajectory reaching back to `from` (the world's clock
+    /// before the tick) however far that is: a tick that predicts across a slow start.
+    pub fn tick_inputs_from(&mut self, from: f64, t: f64, max_age: f64) -> TickInputs {
         let mut out = TickInputs {
             time: t,
-            trajectory: self.trajectory_for(t),
+            trajectory: self.trajectory_for(from, t),
             joint_samples: self
                 .joints
                 .as_mut()
@@ -1030,6 +1037,29 @@ mod tests {
         let held = far.trajectory.unwrap().at(1.0).unwrap()[0];
         assert!((held - (0.1 + MAX_JOINT_EXTRAPOLATION_S)).abs() < 1e-9);
         assert!(far.joint_samples.is_empty(), "each sample reaches one tick");
+    }
+
+    /// A tick that predicts from a world's clock 3 s behind (a slow start) gets the joint path
+    /// from there, sample by sample: the robot moves along it rather than from where it is now.
+    #[test]
+    fn a_tick_from_far_behind_gets_the_joint_path_back_to_the_worlds_clock() {
+        let model = robot();
+        let mut inputs = Inputs::new(vec![], Some((&model, &[0.0])));
+        for k in 0..=40 {
+            let t = 0.1 * k as f64;
+            let js = joint_state(t, &["j1"], &[t * t]);
+            inputs.offer_joint_state(&js, 4.0).unwrap();
+        }
+        let tick = inputs.tick_inputs_from(1.0, 4.0, 0.5);
+        let path = tick.trajectory.unwrap();
+        for t in [1.0, 1.5, 2.7, 3.9] {
+            let q = path.at(t).unwrap()[0];
+            assert!((q - t * t).abs() < 1e-9, "{q} at {t} s");
+        }
+        // Without a world behind, the path starts a second before the tick.
+        let recent = inputs.tick_inputs(4.0, 0.5).trajectory.unwrap();
+        let held = recent.at(1.0).unwrap()[0];
+        assert!(held > 8.0, "held at its first sample, about 3 s: {held}");
     }
 
     /// PNG decompresses to exactly the pixels it was made from, JPEG to within its quantisation;

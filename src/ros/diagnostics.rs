@@ -160,6 +160,7 @@ fn tick_status(window: &Window, stats: &RunStats, dt: f64) -> DiagnosticStatus {
         kv("ticks", stats.ticks),
         kv("overruns", stats.overruns),
         kv("skipped_ticks", stats.skipped_ticks),
+        kv("jumped_s", format!("{:.2}", stats.jumped_s)),
         kv("dropped_outputs", stats.dropped_outputs),
         kv("rss_mb", format!("{:.1}", rss_mb())),
     ];

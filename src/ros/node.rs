@@ -36,6 +36,9 @@ pub struct RunStats {
     pub ticks: usize,
     pub overruns: usize,
     pub skipped_ticks: usize,
+    /// Seconds the world's clock jumped without prediction (ticks later than
+    /// `tracker::MAX_CATCH_UP_TICKS`).
+    pub jumped_s: f64,
     pub dropped_outputs: usize,
     pub achieved_rate_hz: f64,
     pub tick_ms_mean: f64,

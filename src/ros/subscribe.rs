@@ -33,6 +33,9 @@ pub struct Shared {
     pub first_depth: BTreeMap<String, Image>,
     pub first_masks: BTreeMap<String, Image>,
     pub last_joint_state: Option<JointState>,
+    /// Before the tracker starts: the newest joint states in order (at most
+    /// `JOINT_HISTORY_LEN`), which drive the robot across the ticks the start-up took.
+    pub joint_history: std::collections::VecDeque<JointState>,
     pub inputs: Option<Inputs>,
     pub malformed: BTreeMap<String, usize>,
     pub bad_camera_info: BTreeMap<String, String>,
@@ -47,6 +50,9 @@ pub struct Shared {
     /// None: depth is read for initialisation only.
     pub tracking_depth_unit: Option<f32>,
 }
+
+/// Joint states kept before tracking starts: 4 s of a 1 kHz driver.
+pub const JOINT_HISTORY_LEN: usize = 4096;
 
 pub fn topic_name(full: &str) -> Result<Name> {
     Name::parse(full).map_err(|e| anyhow!("bad topic name '{full}': {e:?}"))
@@ -152,7 +158,28 @@ impl Shared {
                 let now = self.clock.now().unwrap_or(f64::NAN);
                 let _ = inputs.offer_joint_state(&js, now);
             }
-            None => self.last_joint_state = Some(js),
+            None => {
+                if self.joint_history.len() == JOINT_HISTORY_LEN {
+                    self.joint_history.pop_front();
+                }
+                self.joint_history.push_back(js.clone());
+                self.last_joint_state = Some(js);
+            }
+        }
+    }
+
+    /// What initialisation reads, copied out so the world can be built while the subscriptions
+    /// go on: the first frames, the newest joint state, the robot's description and the tf tree.
+    pub fn first_arrivals(&self) -> Shared {
+        Shared {
+            first_images: self.first_images.clone(),
+            first_depth: self.first_depth.clone(),
+            first_masks: self.first_masks.clone(),
+            last_joint_state: self.last_joint_state.clone(),
+            robot_description: self.robot_description.clone(),
+            tf: self.tf.clone(),
+            clock: self.clock.clone(),
+            ..Default::default()
         }
     }
 

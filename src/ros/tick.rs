@@ -2,8 +2,9 @@
 //! for a scene initialised from cameras, have sent a first image; builds the world as replay does
 //! (a scenario, or `init` from the first frames); then drives `Tracker::tick` at the physics rate
 //! on the node's clock (wall or `/clock`), on whatever is newest, skipping ticks whose deadline
-//! passed instead of queueing them; a clock that goes back (a bag played again) restarts the
-//! world's clock there. What each tick produced goes to the publishing thread (`Outputs`).
+//! passed instead of queueing them (the first tick predicts across the whole set-up, from the
+//! first frames on); a clock that goes back (a bag played again) restarts the world's clock there.
+//! What each tick produced goes to the publishing thread (`Outputs`).
 
 use super::diagnostics::{ObjectHealth, Window, diagnostics, waiting_diagnostics};
 use super::node::RunStats;
@@ -93,8 +94,28 @@ pub fn tick_loop(
             outputs.debug_every = applied.node.debug_images_every as usize;
         }
         join_late_cameras(&shared, &applied.node, next)?;
-        let inputs = take_inputs(&shared, next, applied.correct.max_image_age as f64)?;
-        let report = tracker.tick(&inputs)?;
+        let max_age = applied.correct.max_image_age as f64;
+        let inputs = take_inputs(&shared, tracker.time(), next, max_age)?;
+        let report = if index == 0 {
+            let report = tracker.first_tick(&inputs)?;
+            log(&format!(
+                "first tick at {next:.3} s: the {:.2} s since the first frames predicted ({} ticks)",
+                report.caught_up as f64 * dt,
+                report.caught_up
+            ));
+            report
+        } else {
+            tracker.tick(&inputs)?
+        };
+        if report.jumped_s > 0.0 {
+            log(&format!(
+                "tick at {next:.3} s ran {:.2} s late: the world's clock jumped {:.2} s unpredicted \
+                 (the robot stands at once where its joint states took it)",
+                (report.caught_up + 1) as f64 * dt + report.jumped_s,
+                report.jumped_s
+            ));
+            outputs.stats.jumped_s += report.jumped_s;
+        }
         index += 1;
         outputs.gain = tracker.visual_gain().unwrap_or(applied.correct.gain);
         outputs.max_age = applied.correct.max_image_age as f64;
@@ -112,15 +133,16 @@ pub fn tick_loop(
 /// A clock this far behind the world's (s) went back: the world's clock restarts from it.
 pub const CLOCK_BACK_S: f64 = 1.0;
 
-/// What the tick ending at `t` consumes, and the input explanations logged.
-fn take_inputs(shared: &Mutex<Shared>, t: f64, max_age: f64) -> Result<TickInputs> {
+/// What the tick from the world's clock `from` to `t` consumes, and the input explanations
+/// logged.
+fn take_inputs(shared: &Mutex<Shared>, from: f64, t: f64, max_age: f64) -> Result<TickInputs> {
     let Ok(mut s) = shared.lock() else {
         bail!("state lock poisoned")
     };
     let Some(inputs) = s.inputs.as_mut() else {
         bail!("inputs missing")
     };
-    let tick = inputs.tick_inputs(t, max_age);
+    let tick = inputs.tick_inputs_from(from, t, max_age);
     for line in inputs.log.take_lines() {
         log(&line);
     }
@@ -187,9 +209,7 @@ fn start_tracker(
         let all = cameras.len() == nc.cameras.len() && base.is_none();
         let ready = !cameras.is_empty() && !needs_images && clock_runs && description.is_none();
         if ready && (all || waited > nc.camera_wait as f64) {
-            let mut s = shared.lock().map_err(|_| anyhow!("state lock poisoned"))?;
-            report_unused_cameras(&mut s, nc, &cameras, waited);
-            return start(config, cameras, &mut s).map(Some);
+            return start(config, cameras, shared, waited).map(Some);
         }
         if !told && waited > 1.0 {
             log(&format!(
@@ -251,20 +271,44 @@ fn report_unused_cameras(s: &mut Shared, nc: &NodeConfig, ready: &[(String, Came
 
 /// The tracker on the node's clock, and the inputs that feed it (with the joint state and images
 /// that arrived before it started).
-fn start(config: &Config, cameras: Vec<(String, Camera)>, s: &mut Shared) -> Result<Tracker> {
-    let mut scene = build_scene(config, &cameras, s)?;
-    let t = s.clock.now().context("no time yet")?;
+/// Build the world from what has arrived and its tracker. The world begins when its first frames
+/// and joint state were the newest; the subscriptions run on while it is built (no lock held), and
+/// the joint states that came meanwhile go to the tracker's inputs, so the first tick predicts the
+/// robot along them across however long building took (`Tracker::first_tick`).
+fn start(
+    config: &Config,
+    cameras: Vec<(String, Camera)>,
+    shared: &Mutex<Shared>,
+    waited: f64,
+) -> Result<Tracker> {
+    let lock = || shared.lock().map_err(|_| anyhow!("state lock poisoned"));
+    let (first, t) = {
+        let mut s = lock()?;
+        report_unused_cameras(&mut s, &config.node, &cameras, waited);
+        let t = s.clock.now().context("no time yet")?;
+        (s.first_arrivals(), t)
+    };
+    let mut scene = build_scene(config, &cameras, &first)?;
     scene.world.time = t;
     let tracker = Tracker::new(scene, config, true)?;
     let mut inputs = tracker.inputs(cameras);
     let robot = &config.robot;
     inputs.rename_joints(&robot.joint_prefix_received, &robot.joint_prefix_urdf);
-    if let Some(js) = s.last_joint_state.take() {
-        let _ = inputs.offer_joint_state(&js, t);
+    let mut s = lock()?;
+    let now = s.clock.now().unwrap_or(t);
+    let since = first
+        .last_joint_state
+        .as_ref()
+        .map(|js| js.header.stamp.seconds());
+    for js in std::mem::take(&mut s.joint_history) {
+        if since.is_none_or(|t0| js.header.stamp.seconds() >= t0) {
+            let _ = inputs.offer_joint_state(&js, now);
+        }
     }
+    s.last_joint_state = None;
     for (c, img) in std::mem::take(&mut s.first_images) {
         if let Some(k) = inputs.camera_index(&c) {
-            let _ = inputs.offer_image(k, &img, t);
+            let _ = inputs.offer_image(k, &img, now);
         }
     }
     log(&format!(
@@ -448,8 +492,12 @@ impl Outputs {
             stats.images_accepted = cameras.map(|f| (f.name.clone(), f.accepted)).collect();
         }
         log(&format!(
-            "stopped after {} ticks ({:.1} Hz, {} overruns, {} skipped)",
-            stats.ticks, stats.achieved_rate_hz, stats.overruns, stats.skipped_ticks
+            "stopped after {} ticks ({:.1} Hz, {} overruns, {} skipped, {:.2} s jumped)",
+            stats.ticks,
+            stats.achieved_rate_hz,
+            stats.overruns,
+            stats.skipped_ticks,
+            stats.jumped_s
         ));
         self.stats
     }

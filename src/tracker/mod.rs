@@ -29,6 +29,11 @@ use std::time::Instant;
 /// At most this many missed ticks are caught up by prediction alone; beyond it the clock jumps.
 pub const MAX_CATCH_UP_TICKS: usize = 10;
 
+/// The first tick after a start predicts across the whole set-up, up to this long (s): the world
+/// begins at the first frames, and a jump there would put the robot at once where its joint states
+/// took it meanwhile, into what it pushed (`Tracker::first_tick`).
+pub const START_CATCH_UP_S: f64 = 10.0;
+
 pub struct Tracker {
     scene: Scene,
     solver: Solver,
@@ -138,16 +143,28 @@ impl Tracker {
         })
     }
 
-    /// Run the tick that ends at `inputs.time`: catch up with the clock if it ran ahead, follow
-    /// the joint trajectory, predict, correct.
+    /// Run the tick that ends at `inputs.time`: catch up with the clock if it ran ahead (at most
+    /// `MAX_CATCH_UP_TICKS`), follow the joint trajectory, predict, correct.
     pub fn tick(&mut self, inputs: &TickInputs) -> Result<TickReport> {
+        self.tick_catching_up(inputs, MAX_CATCH_UP_TICKS)
+    }
+
+    /// The first tick of a live run: as `tick`, but it predicts across every tick since the world
+    /// began (up to `START_CATCH_UP_S`), however long building the tracker took, so the robot's
+    /// joint states since the first frames move it through the physics, pushing what it meets.
+    pub fn first_tick(&mut self, inputs: &TickInputs) -> Result<TickReport> {
+        let dt = self.solver.config().dt as f64;
+        self.tick_catching_up(inputs, (START_CATCH_UP_S / dt).ceil() as usize)
+    }
+
+    fn tick_catching_up(&mut self, inputs: &TickInputs, limit: usize) -> Result<TickReport> {
         // The robot follows the newest joint states, also across ticks caught up.
         if let (Some(trajectory), Some((_, followed))) = (&inputs.trajectory, &mut self.scene.robot)
         {
             followed.clone_from(trajectory);
         }
         let clock = Instant::now();
-        let mut report = self.catch_up(inputs.time)?;
+        let mut report = self.catch_up(inputs.time, limit)?;
         self.scene.advance(&mut self.solver)?;
         report.note_touches(&self.solver.stats.touched);
         report.rejected_forces = self.solver.stats.rejected_forces;
@@ -267,17 +284,18 @@ impl Tracker {
         self.scene.advance(&mut self.solver)
     }
 
-    /// Predict across ticks the clock has already passed (their images are gone), up to
-    /// `MAX_CATCH_UP_TICKS`; beyond that, jump the world's clock.
-    fn catch_up(&mut self, t: f64) -> Result<TickReport> {
+    /// Predict across ticks the clock has already passed (their images are gone), up to `limit`;
+    /// beyond that, jump the world's clock (the robot then stands at once where its joint states
+    /// put it).
+    fn catch_up(&mut self, t: f64, limit: usize) -> Result<TickReport> {
         let dt = self.solver.config().dt as f64;
         let behind = ((t - dt - self.scene.world.time) / dt).round().max(0.0) as usize;
         let mut report = TickReport::default();
-        if behind > MAX_CATCH_UP_TICKS {
-            report.jumped_s = (behind - MAX_CATCH_UP_TICKS) as f64 * dt;
+        if behind > limit {
+            report.jumped_s = (behind - limit) as f64 * dt;
             self.scene.world.time += report.jumped_s;
         }
-        report.caught_up = behind.min(MAX_CATCH_UP_TICKS);
+        report.caught_up = behind.min(limit);
         for _ in 0..report.caught_up {
             self.scene.advance(&mut self.solver)?;
             report.note_touches(&self.solver.stats.touched);
@@ -458,6 +476,42 @@ mod tests {
             "{} vs {t}",
             tracker.time()
         );
+    }
+
+    /// A live start whose set-up outlasted the catch-up limit (the world began at the first frames,
+    /// 2.5 s before its first tick) is predicted tick by tick across the whole of it: the same
+    /// world as ticking through it, so the rod that reached the box meanwhile pushes it along at
+    /// the rod's pace (0.09 m/s) instead of landing inside it and throwing it.
+    #[test]
+    fn a_slow_start_is_predicted_through_so_the_rod_pushes_what_it_reached_meanwhile() {
+        let scene = || crate::scenario::build("pushed_box", Pose::IDENTITY).unwrap();
+        let mut started = physics_only(scene());
+        let mut stepped = physics_only(scene());
+        let dt = started.physics().dt as f64;
+        let t0 = started.time();
+        let ticks = 75;
+        let report = started.first_tick(&at(t0 + ticks as f64 * dt)).unwrap();
+        for _ in 0..ticks {
+            stepped.predict().unwrap();
+        }
+        assert_eq!(report.caught_up, ticks - 1);
+        assert_eq!(report.jumped_s, 0.0);
+        assert_eq!(
+            started.world().particles.position,
+            stepped.world().particles.position
+        );
+        let world = started.world();
+        let start = scene().world;
+        let box_id = world.shapes.name.iter().position(|n| n == "box").unwrap() as ShapeId;
+        let moved = world.shapes.pose[box_id as usize].translation
+            - start.shapes.pose[box_id as usize].translation;
+        let range = world.shapes.range(box_id);
+        let fastest = world.particles.velocity[range]
+            .iter()
+            .map(|v| v.length())
+            .fold(0.0, f32::max);
+        assert!(moved.y > 0.01, "the box was pushed along +y: {moved:?}");
+        assert!(fastest < 0.3, "the box moves at {fastest} m/s");
     }
 
     /// The robot is driven by the trajectory the tick brings: its pusher link ends the tick where
