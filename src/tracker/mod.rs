@@ -479,17 +479,17 @@ mod tests {
     }
 
     /// A live start whose set-up outlasted the catch-up limit (the world began at the first frames,
-    /// 2.5 s before its first tick) is predicted tick by tick across the whole of it: the same
-    /// world as ticking through it, so the rod that reached the box meanwhile pushes it along at
-    /// the rod's pace (0.09 m/s) instead of landing inside it and throwing it.
+    /// 3 s before its first tick) is predicted tick by tick across the whole of it: the same world
+    /// as ticking through it, so the rod that reached the T-block meanwhile pushes it along at the
+    /// rod's pace (0.075 m/s) instead of landing inside it and throwing it.
     #[test]
     fn a_slow_start_is_predicted_through_so_the_rod_pushes_what_it_reached_meanwhile() {
-        let scene = || crate::scenario::build("pushed_box", Pose::IDENTITY).unwrap();
+        let scene = || crate::scene::tblock_and_robot().unwrap();
         let mut started = physics_only(scene());
         let mut stepped = physics_only(scene());
         let dt = started.physics().dt as f64;
         let t0 = started.time();
-        let ticks = 75;
+        let ticks = 90;
         let report = started.first_tick(&at(t0 + ticks as f64 * dt)).unwrap();
         for _ in 0..ticks {
             stepped.predict().unwrap();
@@ -502,16 +502,21 @@ mod tests {
         );
         let world = started.world();
         let start = scene().world;
-        let box_id = world.shapes.name.iter().position(|n| n == "box").unwrap() as ShapeId;
-        let moved = world.shapes.pose[box_id as usize].translation
-            - start.shapes.pose[box_id as usize].translation;
-        let range = world.shapes.range(box_id);
+        let id = world
+            .shapes
+            .name
+            .iter()
+            .position(|n| n == "tblock")
+            .unwrap() as ShapeId;
+        let moved =
+            world.shapes.pose[id as usize].translation - start.shapes.pose[id as usize].translation;
+        let range = world.shapes.range(id);
         let fastest = world.particles.velocity[range]
             .iter()
             .map(|v| v.length())
             .fold(0.0, f32::max);
-        assert!(moved.y > 0.01, "the box was pushed along +y: {moved:?}");
-        assert!(fastest < 0.3, "the box moves at {fastest} m/s");
+        assert!(moved.y > 0.01, "the T-block was pushed along +y: {moved:?}");
+        assert!(fastest < 0.3, "the T-block moves at {fastest} m/s");
     }
 
     /// The robot is driven by the trajectory the tick brings: its pusher link ends the tick where
