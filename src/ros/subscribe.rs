@@ -1,7 +1,7 @@
 //! Topics in: one task per subscription hands each message to the state it shares with the tick
-//! thread. Before tracking starts, the newest image, depth, mask and joint state of each source
-//! are kept for initialisation; afterwards images and joint states go to `Inputs`, which checks
-//! them. A message that cannot be decoded is counted and logged; nothing a publisher sends stops
+//! thread. Before tracking starts, the newest image, depth and mask of each camera are kept for
+//! initialisation, and the last seconds of joint states for it and the start-up's first tick;
+//! afterwards images and joint states go to `Inputs`, which checks them. A message that cannot be decoded is counted and logged; nothing a publisher sends stops
 //! a task.
 
 use super::params::Remaps;
@@ -32,9 +32,9 @@ pub struct Shared {
     pub first_images: BTreeMap<String, Image>,
     pub first_depth: BTreeMap<String, Image>,
     pub first_masks: BTreeMap<String, Image>,
-    pub last_joint_state: Option<JointState>,
     /// Before the tracker starts: the newest joint states in order (at most
-    /// `JOINT_HISTORY_LEN`), which drive the robot across the ticks the start-up took.
+    /// `JOINT_HISTORY_LEN`); the last one stands the robot for initialisation, and those after it
+    /// drive the robot across the ticks the start-up took.
     pub joint_history: std::collections::VecDeque<JointState>,
     pub inputs: Option<Inputs>,
     pub malformed: BTreeMap<String, usize>,
@@ -162,8 +162,7 @@ impl Shared {
                 if self.joint_history.len() == JOINT_HISTORY_LEN {
                     self.joint_history.pop_front();
                 }
-                self.joint_history.push_back(js.clone());
-                self.last_joint_state = Some(js);
+                self.joint_history.push_back(js);
             }
         }
     }
@@ -175,7 +174,7 @@ impl Shared {
             first_images: self.first_images.clone(),
             first_depth: self.first_depth.clone(),
             first_masks: self.first_masks.clone(),
-            last_joint_state: self.last_joint_state.clone(),
+            joint_history: self.joint_history.back().cloned().into_iter().collect(),
             robot_description: self.robot_description.clone(),
             tf: self.tf.clone(),
             clock: self.clock.clone(),

@@ -269,8 +269,6 @@ fn report_unused_cameras(s: &mut Shared, nc: &NodeConfig, ready: &[(String, Came
     }
 }
 
-/// The tracker on the node's clock, and the inputs that feed it (with the joint state and images
-/// that arrived before it started).
 /// Build the world from what has arrived and its tracker. The world begins when its first frames
 /// and joint state were the newest; the subscriptions run on while it is built (no lock held), and
 /// the joint states that came meanwhile go to the tracker's inputs, so the first tick predicts the
@@ -297,15 +295,14 @@ fn start(
     let mut s = lock()?;
     let now = s.clock.now().unwrap_or(t);
     let since = first
-        .last_joint_state
-        .as_ref()
+        .joint_history
+        .back()
         .map(|js| js.header.stamp.seconds());
     for js in std::mem::take(&mut s.joint_history) {
         if since.is_none_or(|t0| js.header.stamp.seconds() >= t0) {
             let _ = inputs.offer_joint_state(&js, now);
         }
     }
-    s.last_joint_state = None;
     for (c, img) in std::mem::take(&mut s.first_images) {
         if let Some(k) = inputs.camera_index(&c) {
             let _ = inputs.offer_image(k, &img, now);
@@ -366,8 +363,8 @@ fn build_scene(config: &Config, cameras: &[(String, Camera)], s: &Shared) -> Res
         })
         .collect();
     let joints: Vec<(String, f64)> = s
-        .last_joint_state
-        .as_ref()
+        .joint_history
+        .back()
         .map(|js| {
             let named = js.name.iter().cloned().zip(js.position.iter().copied());
             named.filter(|(_, v)| v.is_finite()).collect()
