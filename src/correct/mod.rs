@@ -910,8 +910,9 @@ impl Corrector {
             self.pulls.resize(pulls.len(), PullState::default());
             for (i, (d, state)) in pulls.iter().zip(&mut self.pulls).enumerate() {
                 let share = shares[world.particles.shape[i] as usize];
-                let velocity = world.particles.velocity[i];
-                let accel = state.acceleration_following(*d, velocity, share, &c, dt);
+                let (position, velocity) =
+                    (world.particles.position[i], world.particles.velocity[i]);
+                let accel = state.acceleration_following(*d, position, velocity, share, &c, dt);
                 if accel == Vec3::ZERO || world.particles.inv_mass[i] <= 0.0 {
                     continue;
                 }
