@@ -23,9 +23,9 @@ use serde::Serialize;
 /// run of 0.6 what no camera may break: held 52 mm off by a build whose follow damping braked it
 /// sooner, the same bar agreed 0.64, 0.50, 0.00 in turn and was never lost with ten in a row
 /// asked; seven of ten is two cameras of three over three rounds. On MuJoCo's model-error sets no
-/// object within 10 mm of its truth was lost by either rule (360 objects tracked by builds of
-/// stop 62 for ten in a row; the 96 objects of seeds 2600-2603, 2700-2703 and 2800-2803 tracked by
-/// four builds, offline from their `health.csv`, for seven of ten).
+/// object within 10 mm of its truth was lost by either rule (for ten in a row, the 360 objects
+/// it was chosen on; for seven of ten, offline from their `health.csv`, the 96 objects of seeds
+/// 2600-2603, 2700-2703 and 2800-2803, each tracked by three or four builds).
 pub const LOST_BELOW: f32 = 0.6;
 pub const LOST_AFTER: u32 = 7;
 pub const LOST_WINDOW: u32 = 10;
