@@ -3,7 +3,8 @@
 //! behind the robot or another object), the share whose observed pixel looks more like that
 //! surface than like the static scene behind it (a relative test, so a camera's colour response
 //! that differs from the model's does not read as disagreement; beyond the modelled table, where
-//! there is no scene to compare with, it must be that surface's colour: `looks_like`).
+//! there is no scene to compare with, it must be that surface's colour: `looks_like`; where the
+//! camera saw the floor there at the start, that stands in for the scene: `super::backdrop`).
 //! Near 1 while tracking holds; near 0 once the rendered object no longer overlaps the observed one
 //! (the photometric gradient is then gone too) or something unmodelled covers it.
 //!

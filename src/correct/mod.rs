@@ -10,6 +10,7 @@
 
 pub mod adam;
 pub mod agreement;
+pub mod backdrop;
 pub mod friction;
 pub mod nudge;
 pub mod plant;
@@ -23,6 +24,7 @@ use crate::render::{
 use crate::world::{NO_PARENT, ShapeId, ShapeKind, World};
 use adam::Adam;
 use anyhow::{Result, bail};
+use backdrop::Backdrop;
 pub use friction::{FrictionMemory, Support, compensate_friction};
 use glam::{Vec3, Vec4};
 pub use plant::{Plant, loop_gains};
@@ -550,9 +552,12 @@ pub struct Corrector {
     depth_trusted: Vec<Option<Vec<bool>>>,
     /// The camera the next iteration starts with (`cameras_per_iteration` > 0).
     turn: usize,
-    /// The static scene rendered into each camera seen so far (for the occluder test).
-    /// Static-scene renders per camera: colour and coverage (accumulated alpha).
-    backgrounds: Vec<(Camera, Vec<Vec3>, Vec<f32>)>,
+    /// The static scene rendered into each camera seen so far (`SceneRender`).
+    backgrounds: Vec<SceneRender>,
+    /// What each camera of the first correction saw where the model has nothing
+    /// (`backdrop::Backdrop`), and whether they were taken.
+    backdrops: Vec<Backdrop>,
+    backdrops_taken: bool,
     /// The table the objects rest on, as the model has it (`friction_compensation`).
     support: Option<Support>,
     /// The model's physics the gain is scaled for (`loop_gains`).
@@ -581,6 +586,8 @@ impl Corrector {
             depth_trusted: Vec::new(),
             turn: 0,
             backgrounds: Vec::new(),
+            backdrops: Vec::new(),
+            backdrops_taken: false,
             support: None,
             plant: Plant::default(),
         })
@@ -654,6 +661,9 @@ impl Corrector {
                     v.camera.height
                 );
             }
+        }
+        if !self.backdrops_taken {
+            self.take_backdrops(world, views)?;
         }
         let windows: Vec<Roi> = views
             .iter()
@@ -966,34 +976,82 @@ impl Corrector {
 /// that moves does not grow the cache without bound.
 const MAX_BACKGROUNDS: usize = 16;
 
+/// The static scene (Gaussians without a parent) rendered into one camera: its colour and coverage
+/// (accumulated alpha, 1 where the static scene fills the pixel), and both with the camera's
+/// backdrop where it has one (`Backdrop::merged`), which the agreement and the pose search compare
+/// with.
+struct SceneRender {
+    camera: Camera,
+    colour: Vec<Vec3>,
+    coverage: Vec<f32>,
+    with_backdrop: Option<(Vec<Vec3>, Vec<f32>)>,
+}
+
+impl SceneRender {
+    /// The colour and coverage an object's pixels are compared with (`Corrector::background_render`).
+    fn compared(&self) -> (&[Vec3], &[f32]) {
+        match &self.with_backdrop {
+            Some((colour, coverage)) => (colour, coverage),
+            None => (&self.colour, &self.coverage),
+        }
+    }
+}
+
 impl Corrector {
-    /// The static scene (Gaussians without a parent) rendered into `camera`, cached per camera
-    /// (the newest `MAX_BACKGROUNDS` poses).
+    /// The static scene rendered into `camera` (colour only, without the backdrop: the occluder
+    /// test compares what the model renders), cached per camera.
     fn background(&mut self, world: &World, camera: &Camera) -> Result<&[Vec3]> {
-        Ok(self.background_render(world, camera)?.0)
+        let k = self.scene_render(world, camera)?;
+        Ok(&self.backgrounds[k].colour)
     }
 
-    /// The static scene rendered into `camera`: colour and coverage (1 where the static scene
-    /// fills the pixel, 0 where the model has nothing there).
+    /// What the agreement and the pose search compare an object's pixels with in `camera`: the
+    /// static scene's colour and coverage (1 where it fills the pixel, 0 where the model has
+    /// nothing there), with the backdrop where the camera has one.
     fn background_render(&mut self, world: &World, camera: &Camera) -> Result<(&[Vec3], &[f32])> {
-        let k = match self.backgrounds.iter().position(|(c, ..)| c == camera) {
-            Some(k) => k,
-            None => {
-                let out = self.renderer.forward(
-                    &GaussianCloud::static_scene(world),
-                    camera,
-                    Roi::full(camera),
-                )?;
-                // A camera moved by tf has a new pose every tick: keep only the newest renders.
-                if self.backgrounds.len() >= MAX_BACKGROUNDS {
-                    self.backgrounds.remove(0);
-                }
-                self.backgrounds.push((*camera, out.colour, out.alpha));
-                self.backgrounds.len() - 1
-            }
-        };
-        let (_, colour, alpha) = &self.backgrounds[k];
-        Ok((colour, alpha))
+        let k = self.scene_render(world, camera)?;
+        Ok(self.backgrounds[k].compared())
+    }
+
+    /// The index in the cache of `camera`'s static-scene render (rendered where missing; the
+    /// newest `MAX_BACKGROUNDS` poses are kept: a camera moved by tf has a new pose every tick).
+    fn scene_render(&mut self, world: &World, camera: &Camera) -> Result<usize> {
+        if let Some(k) = self.backgrounds.iter().position(|r| r.camera == *camera) {
+            return Ok(k);
+        }
+        let out = self.renderer.forward(
+            &GaussianCloud::static_scene(world),
+            camera,
+            Roi::full(camera),
+        )?;
+        let with_backdrop = (self.backdrops.iter())
+            .find(|b| b.camera == *camera)
+            .map(|b| b.merged(&out.colour, &out.alpha));
+        if self.backgrounds.len() >= MAX_BACKGROUNDS {
+            self.backgrounds.remove(0);
+        }
+        self.backgrounds.push(SceneRender {
+            camera: *camera,
+            colour: out.colour,
+            coverage: out.alpha,
+            with_backdrop,
+        });
+        Ok(self.backgrounds.len() - 1)
+    }
+
+    /// Take each view's backdrop (`backdrop::Backdrop`), once: at the first correction with views.
+    fn take_backdrops(&mut self, world: &World, views: &[View]) -> Result<()> {
+        self.backdrops_taken = true;
+        for v in views.iter().take(MAX_BACKGROUNDS) {
+            let k = self.scene_render(world, &v.camera)?;
+            let coverage = std::mem::take(&mut self.backgrounds[k].coverage);
+            let taken = Backdrop::take(&mut *self.renderer, world, &v.camera, v.image, &coverage);
+            self.backgrounds[k].coverage = coverage;
+            self.backdrops.push(taken?);
+        }
+        // Renders cached before the backdrops are merged with them when next asked for.
+        self.backgrounds.clear();
+        Ok(())
     }
 }
 

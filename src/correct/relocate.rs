@@ -690,8 +690,8 @@ impl Corrector {
         ))
     }
 
-    /// The static scene's render and coverage for each view's camera, from the cache (rendered
-    /// where missing; None only for a camera the cache dropped again, with more views than it
+    /// The static scene's render and coverage for each view's camera, with its backdrop, from the
+    /// cache (rendered where missing; None only for a camera the cache dropped again, with more views than it
     /// keeps).
     fn backgrounds_of(
         &mut self,
@@ -704,9 +704,8 @@ impl Corrector {
         Ok(views
             .iter()
             .map(|v| {
-                let (_, colour, coverage) =
-                    self.backgrounds.iter().find(|(c, ..)| *c == v.camera)?;
-                Some((&colour[..], &coverage[..]))
+                let r = self.backgrounds.iter().find(|r| r.camera == v.camera)?;
+                Some(r.compared())
             })
             .collect())
     }
