@@ -560,7 +560,9 @@ fn error_and_lost(folder: &Path, object: &str) -> Vec<(f64, bool)> {
 /// measuring one tick in three) or beyond the modelled table (slippery_1602: the floor there,
 /// compared with the black of an empty render, looked like the orange bar) is never off
 /// silently: within every half second the tracker spends 30 mm or more off, it says the object
-/// is lost. Both were held 90-96 mm off for over 2 s, saying nothing, before.
+/// is lost. Both were held 90-96 mm off for over 2 s, saying nothing, before. Since the backdrop
+/// (`correct::backdrop`, the next test) slippery_1602 is followed past the edge and never 30 mm
+/// off; slippery_1902 still is, and is reported.
 #[test]
 #[ignore = "slow: full tier (tests/run_all.sh)"]
 fn an_object_that_slides_where_the_model_cannot_follow_is_reported_lost() {
@@ -597,4 +599,27 @@ fn an_object_that_slides_where_the_model_cannot_follow_is_reported_lost() {
         assert_eq!(said, ticks.iter().any(|(_, l)| *l), "{events}");
     }
     println!("{lost_runs} half-seconds 30 mm or more off, each reported lost");
+}
+
+/// An object that slides past the modelled table's edge stays tracked where the cameras saw the
+/// floor at the start: slippery_1602's bar slid 54 cm, ending 15 cm past the edge in dimmer
+/// light. Compared with its own colour alone there (before `correct::backdrop`) it was left 102
+/// mm behind, 47 mm mean; compared with the floor each camera saw there first, 12 mm mean and 23
+/// mm at the end.
+#[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
+fn an_object_that_slides_past_the_modelled_table_is_followed_against_the_floor_first_seen() {
+    let folder = record_as("slid_past", "slippery", 1602, None, &[]);
+    let m = replay(&folder, &[]);
+    let error = &m["tracking_error"]["obj1"];
+    let (mean, last) = (
+        error["mean_mm"].as_f64().unwrap(),
+        error["final_mm"].as_f64().unwrap(),
+    );
+    println!(
+        "slippery_1602: mean {mean:.1} mm, final {last:.1} mm; {}",
+        m["track_events"]
+    );
+    assert!(mean < 25.0, "mean {mean} mm");
+    assert!(last < 50.0, "final {last} mm");
 }
