@@ -174,6 +174,43 @@ mod tests {
     }
 
     #[test]
+    fn a_camera_that_moves_after_the_first_correction_has_no_backdrop() {
+        // A camera hung from a frame tf moves: 2 cm along by the time the slab has slid. What it
+        // saw first lies on other pixels now, so it keeps the absolute test, and the dimmed slab
+        // scores as without a backdrop; the camera that stayed put scores it as at the start.
+        let centre = Vec3::new(0.03, 0.0, 0.0);
+        let eye = centre + Vec3::Z * 0.35;
+        let fixed = Camera::look_at(96, 72, 110.0, eye, centre);
+        let shifted = Vec3::new(0.0, 0.02, 0.0);
+        let moved_camera = Camera::look_at(96, 72, 110.0, eye + shifted, centre + shifted);
+        let (mut world, s) = slab_at(-0.02);
+        let (slid, _) = slab_at(0.08);
+        let here = world.shapes.pose[s as usize];
+        let mut c = Corrector::new(CorrectConfig::default(), RenderSettings::default()).unwrap();
+        let first = seen(&world, &fixed, 1.0);
+        let start = [View {
+            camera: fixed,
+            image: &first,
+            depth: None,
+        }];
+        c.correct(&mut world, &start, 1.0 / 30.0).unwrap();
+        let mut score = |camera: Camera| {
+            let image = seen(&slid, &camera, 0.6);
+            let views = [View {
+                camera,
+                image: &image,
+                depth: None,
+            }];
+            (c.relocate(&world, s, here, &views, &Search::default())
+                .unwrap())
+            .map_or(0.0, |f| f.score)
+        };
+        let (stayed, moved) = (score(fixed), score(moved_camera));
+        assert!(stayed > 0.9, "the fixed camera: {stayed}");
+        assert!(moved < 0.6, "the moved camera: {moved}");
+    }
+
+    #[test]
     fn the_backdrop_keeps_no_pixel_of_a_body_or_of_the_modelled_scene() {
         // Where the slab (or within the margin of it) or the static scene covers a pixel, the
         // backdrop does not know it; everywhere else it holds the image's colour.
