@@ -23,7 +23,7 @@ pub const MIN_VISIBLE: usize = 8;
 /// A pixel the static scene covers less than this is outside the model (beyond the modelled
 /// table): there is nothing to compare it with, so it must be within `ABSOLUTE_MATCH` (RGB
 /// distance, colours in [0, 1]) of the object's own colour to look like it.
-const MIN_COVERAGE: f32 = 0.5;
+pub const MIN_COVERAGE: f32 = 0.5;
 const ABSOLUTE_MATCH: f32 = 0.2;
 
 /// Whether an `observed` pixel looks like the object's `own` colour: nearer it than the static

@@ -15,14 +15,12 @@
 //! the search; never used for the photometric loss or the occluder test (a floor pixel the model
 //! cannot render would pull the objects' Gaussians towards it).
 
-use crate::render::{Camera, GaussianCloud, Renderer, Roi};
+use super::agreement::MIN_COVERAGE;
+use crate::render::{Camera, GaussianCloud, Renderer, Roi, dilate};
 use crate::world::{NO_PARENT, World};
 use anyhow::Result;
 use glam::Vec3;
 
-/// A pixel the static scene covers less than this has no scene in the model (as
-/// `agreement::looks_like` reads coverage).
-const NO_SCENE_BELOW: f32 = 0.5;
 /// A pixel the objects and the robot cover more than this, or lies within `MODEL_MARGIN_PX` of
 /// one, shows them rather than the backdrop (their Gaussians can fall short of their outline).
 const MODEL_ABOVE: f32 = 0.02;
@@ -48,17 +46,16 @@ impl Backdrop {
     ) -> Result<Self> {
         let bodies =
             GaussianCloud::from_world_where(world, |i| world.gaussians.parent[i] != NO_PARENT);
-        let (w, h) = (camera.width as i32, camera.height as i32);
-        let pixels = (w * h) as usize;
+        let pixels = (camera.width * camera.height) as usize;
         let body_alpha = match bodies.is_empty() {
             true => vec![0.0; pixels],
             false => renderer.forward(&bodies, camera, Roi::full(camera))?.alpha,
         };
-        let near_body = dilate(&body_alpha, (w, h), MODEL_MARGIN_PX);
+        let near_body = near_a_body(&body_alpha, camera);
         let colour = (0..pixels)
             .map(|k| {
                 let free =
-                    scene_coverage.get(k).is_some_and(|c| *c < NO_SCENE_BELOW) && !near_body[k];
+                    scene_coverage.get(k).is_some_and(|c| *c < MIN_COVERAGE) && !near_body[k];
                 image.get(k).copied().filter(|c| free && c.is_finite())
             })
             .collect();
@@ -80,22 +77,11 @@ impl Backdrop {
     }
 }
 
-/// Per pixel, whether a pixel within `margin` (a square) has `alpha` above `MODEL_ABOVE`.
-fn dilate(alpha: &[f32], (w, h): (i32, i32), margin: i32) -> Vec<bool> {
-    let mut near = vec![false; alpha.len()];
-    for y in 0..h {
-        for x in 0..w {
-            if alpha[(y * w + x) as usize] <= MODEL_ABOVE {
-                continue;
-            }
-            for yy in (y - margin).max(0)..=(y + margin).min(h - 1) {
-                for xx in (x - margin).max(0)..=(x + margin).min(w - 1) {
-                    near[(yy * w + xx) as usize] = true;
-                }
-            }
-        }
-    }
-    near
+/// Per pixel of `camera`, whether a pixel within `MODEL_MARGIN_PX` (a square) has `alpha` above
+/// `MODEL_ABOVE`.
+fn near_a_body(alpha: &[f32], camera: &Camera) -> Vec<bool> {
+    let covered: Vec<bool> = alpha.iter().map(|a| *a > MODEL_ABOVE).collect();
+    dilate(&covered, camera.width, camera.height, MODEL_MARGIN_PX)
 }
 
 #[cfg(test)]
@@ -230,9 +216,9 @@ mod tests {
             .map(|k| if k % 64 < 32 { 1.0 } else { 0.0 })
             .collect();
         let b = Backdrop::take(&mut renderer, &world, &camera, &image, &coverage).unwrap();
-        let near = dilate(&alpha, (64, 48), MODEL_MARGIN_PX);
+        let near = near_a_body(&alpha, &camera);
         for k in 0..image.len() {
-            let expected = (coverage[k] < NO_SCENE_BELOW && !near[k]).then_some(image[k]);
+            let expected = (coverage[k] < MIN_COVERAGE && !near[k]).then_some(image[k]);
             assert_eq!(b.colour[k], expected, "pixel {k}");
         }
         assert!(near.iter().any(|n| *n) && b.colour.iter().any(Option::is_some));

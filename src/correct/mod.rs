@@ -988,7 +988,8 @@ struct SceneRender {
 }
 
 impl SceneRender {
-    /// The colour and coverage an object's pixels are compared with (`Corrector::background_render`).
+    /// The colour and coverage an object's pixels are compared with
+    /// (`Corrector::background_render`).
     fn compared(&self) -> (&[Vec3], &[f32]) {
         match &self.with_backdrop {
             Some((colour, coverage)) => (colour, coverage),
@@ -1044,13 +1045,12 @@ impl Corrector {
         self.backdrops_taken = true;
         for v in views.iter().take(MAX_BACKGROUNDS) {
             let k = self.scene_render(world, &v.camera)?;
-            let coverage = std::mem::take(&mut self.backgrounds[k].coverage);
-            let taken = Backdrop::take(&mut *self.renderer, world, &v.camera, v.image, &coverage);
-            self.backgrounds[k].coverage = coverage;
-            self.backdrops.push(taken?);
+            let r = &mut self.backgrounds[k];
+            let taken =
+                Backdrop::take(&mut *self.renderer, world, &v.camera, v.image, &r.coverage)?;
+            r.with_backdrop = Some(taken.merged(&r.colour, &r.coverage));
+            self.backdrops.push(taken);
         }
-        // Renders cached before the backdrops are merged with them when next asked for.
-        self.backgrounds.clear();
         Ok(())
     }
 }

@@ -691,8 +691,8 @@ impl Corrector {
     }
 
     /// The static scene's render and coverage for each view's camera, with its backdrop, from the
-    /// cache (rendered where missing; None only for a camera the cache dropped again, with more views than it
-    /// keeps).
+    /// cache (rendered where missing; None only for a camera the cache dropped again, with more
+    /// views than it keeps).
     fn backgrounds_of(
         &mut self,
         world: &World,

@@ -18,7 +18,7 @@ use crate::correct::{explained, rendered_palette};
 use crate::math::Pose;
 use crate::physics::GroundConfig;
 use crate::render::cpu::CpuRenderer;
-use crate::render::{Camera, GaussianCloud, RenderSettings, Roi};
+use crate::render::{Camera, GaussianCloud, RenderSettings, Roi, dilate};
 use crate::robot::{JointTrajectory, PackagePaths, RobotConfig, RobotInWorld, RobotModel};
 use crate::scene::Scene;
 use crate::world::{NO_PARENT, ShapeId, World, WorldBuilder};
@@ -63,25 +63,6 @@ pub struct InitReport {
     pub labels_from_clusters: bool,
     pub table: Option<table::ColourFit>,
     pub seconds: f64,
-}
-
-/// Grow a mask by `radius` pixels (square neighbourhood).
-pub fn dilate(mask: &[bool], width: u32, height: u32, radius: i32) -> Vec<bool> {
-    let mut out = vec![false; mask.len()];
-    let (w, h) = (width as i32, height as i32);
-    for y in 0..h {
-        for x in 0..w {
-            if !mask[(y * w + x) as usize] {
-                continue;
-            }
-            for yy in (y - radius).max(0)..=(y + radius).min(h - 1) {
-                for xx in (x - radius).max(0)..=(x + radius).min(w - 1) {
-                    out[(yy * w + xx) as usize] = true;
-                }
-            }
-        }
-    }
-    out
 }
 
 /// Move `shape` along the ground normal so that its lowest particle just touches the ground

@@ -247,6 +247,25 @@ impl GaussianCloud {
     }
 }
 
+/// Grow a mask by `radius` pixels (square neighbourhood).
+pub fn dilate(mask: &[bool], width: u32, height: u32, radius: i32) -> Vec<bool> {
+    let mut out = vec![false; mask.len()];
+    let (w, h) = (width as i32, height as i32);
+    for y in 0..h {
+        for x in 0..w {
+            if !mask[(y * w + x) as usize] {
+                continue;
+            }
+            for yy in (y - radius).max(0)..=(y + radius).min(h - 1) {
+                for xx in (x - radius).max(0)..=(x + radius).min(w - 1) {
+                    out[(yy * w + xx) as usize] = true;
+                }
+            }
+        }
+    }
+    out
+}
+
 /// The pixel window covering the projected 3-sigma extent of the Gaussians `indices` in `camera`,
 /// plus `margin` pixels, clamped to the image (empty if none is in front of the camera).
 pub fn footprint_roi(
