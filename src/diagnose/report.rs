@@ -217,7 +217,7 @@ fn relocated_section(md: &mut String, o: &ObjectReport) {
         .collect();
     let _ = writeln!(
         md,
-        "**Moved by something outside the model.** The tracker lost the object and found it in the images away from where the model had it, at {}; predictions across these jumps are left out of locating and fitting.\n",
+        "**Moved by something outside the model.** The tracker lost the object and found it in the images away from where the model had it, at {}; short predictions across these jumps are left out of locating, and a window fitted across one starts and ends where the images had the object.\n",
         said.join(", ")
     );
 }

@@ -21,6 +21,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, str(Path(__file__).parent))
 
+import counterfactual  # noqa: E402
 import scenes  # noqa: E402
 import simulate  # noqa: E402
 import write  # noqa: E402
@@ -45,6 +46,7 @@ def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str 
     clock = time.time()
     urdf = ROOT / "urdf" / "panda_pusher.urdf"
     run = simulate.simulate(scene, str(urdf), width, height)
+    run.measured["shown"] = counterfactual.shown(scene, run, str(urdf))
     bag = folder / "bag"
     if bag.exists():
         for f in bag.iterdir():

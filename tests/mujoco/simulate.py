@@ -58,6 +58,11 @@ class Run:
     poses: list[tuple[float, str, np.ndarray, np.ndarray]]  # t, object, position, quaternion x,y,z,w
     frames: list[Frame]
     measured: dict  # quantities measured from the simulation (a bounce's restitution)
+    # For `counterfactual`: the engine's state at each frame, the robot's joint angles at each
+    # step, and per frame the objects (names) the robot touched in any step to the next frame.
+    states: list[np.ndarray] = field(default_factory=list)
+    plan: np.ndarray | None = None
+    robot_touch: list[set[str]] = field(default_factory=list)
 
 
 def look_at_quat(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -390,6 +395,9 @@ def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
     # through the pause before it, aimed at where the object is (an arm does not jump, so the
     # tip's way over bends towards it); from its start on, fixed.
     following = {"pushes": 1, "hand": 1}
+    robot_geom = np.array([model.body(int(b)).name.startswith("panda") for b in model.geom_bodyid])
+    names = {b: o.name for b, o in zip(bodies, scene.objects)}
+    state_kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
     ik = mujoco.MjData(model)
     # Each push's start as it came: how far its tip is from the object along its line.
     begun = {"pushes": 0, "hand": 0}
@@ -430,6 +438,10 @@ def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
             for o, b in zip(scene.objects, bodies):
                 run.poses.append((t, o.name, data.xpos[b].copy(), np.roll(data.xquat[b], -1).copy()))
             run.frames.append(render(renderer, model, data, cameras, labels, t))
+            state = np.empty(mujoco.mj_stateSize(model, state_kind))
+            mujoco.mj_getState(model, data, state, state_kind)
+            run.states.append(state)
+            run.robot_touch.append(set())
         if k == steps:
             break
         apply_effects(model, data, scene, bodies)
@@ -440,13 +452,29 @@ def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
         data.qvel[:nq] = (plan[k + 1] - plan[k]) / dt
         vz_before = data.qvel[nq + 2] if scene.restitution is not None else 0.0
         mujoco.mj_step(model, data)
+        run.robot_touch[-1] |= touched_by(data, robot_geom, model.geom_bodyid, names)
         if scene.restitution is not None:
             vz = data.qvel[nq + 2]
             impacts.append((vz_before, vz))
     renderer.close()
+    run.plan = plan
     if scene.restitution is not None:
         run.measured["restitution"] = bounce_restitution(impacts)
     return run
+
+
+def touched_by(data: mujoco.MjData, robot_geom: np.ndarray, geom_body: np.ndarray, names: dict[int, str]) -> set[str]:
+    """The objects (by name) the robot is in contact with in `data`."""
+    if data.ncon == 0:
+        return set()
+    g1, g2 = data.contact.geom1[:data.ncon], data.contact.geom2[:data.ncon]
+    out = set()
+    for a, b in zip(g1, g2):
+        if robot_geom[a] != robot_geom[b]:
+            other = geom_body[b] if robot_geom[a] else geom_body[a]
+            if other in names:
+                out.add(names[other])
+    return out
 
 
 def bounce_restitution(vz: list[tuple[float, float]]) -> float:

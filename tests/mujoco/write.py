@@ -184,6 +184,9 @@ def write_truth(out: Path, scene: Scene, run: Run, stamp0: float) -> None:
     truth = dict(scene.truth)
     if scene.kind == "restitution":
         truth["parameter"] = run.measured["restitution"]
+    if "shown" in run.measured:
+        # What the recording can show of the effect (counterfactual.py), per object.
+        truth["shown"] = run.measured["shown"]
     first = run.poses[0]
     truth.update(kind=scene.kind, seed=scene.seed, shape=scene.shape, duration=scene.duration,
                  friction=scene.friction, stamp0=stamp0, support=scene.support,
