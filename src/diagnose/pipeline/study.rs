@@ -113,8 +113,8 @@ pub fn locate_all(trace: &Trace, plan: &Plan) -> Result<Vec<Object>> {
 /// fold's windows and predicts none of the others, so cross-validation does not name it. But a
 /// jump across which another object struck this one is left out, as a push is: it may be how
 /// the two contact models play the collision out, no property of either object. MuJoCo's
-/// heavy_3200, a box struck by one the rod carries into it three times, each time relocated:
-/// fitted across the jumps, its shorter slides (its mass, three times the configured, which
+/// heavy_3200, a box struck three times by one the rod carries into it, relocated once:
+/// fitted across the jump, its shorter slides (its mass, three times the configured, which
 /// pegs's collision with a carried striker does not feel) were named a viscous drag.
 fn windows(trace: &Trace, plan: &Plan, object: &Object) -> Result<(Vec<Prediction>, Vec<bool>)> {
     let (shape, horizon) = (object.shape, plan.horizon);
