@@ -2,12 +2,14 @@
 the hidden truth (truth.json), as `pegs scenario concealed` does for pegs's own scenarios.
 
     python judge.py --pegs target/release/pegs --seeds 100-102 --out DIR [--kinds drag,tether]
-                    [--robot-contact] [--set correct.pose_damping=25 ...]
+                    [--robot-contact] [--set correct.pose_damping=25 ...] [--reuse] [--before DIR]
+                    [--readme README.md --section NAME]
 
 A verdict passes when the named family is the concealed one on the right object (a mass error may
 be named on either object of the collision, as the ratio between them), its parameter is within
 25 % of the truth, and on a control nothing is named. Writes DIR/diagnosis.md (or, with
---robot-contact, DIR/diagnosis_robot_contact.md; each --set adds itself to the name).
+--robot-contact, DIR/diagnosis_robot_contact.md; each --set adds itself to the name), and with
+--readme that text between the README's `<!-- NAME:start -->` and `<!-- NAME:end -->` markers.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 import cases  # noqa: E402
 import generate  # noqa: E402
 import scenes  # noqa: E402
+import table  # noqa: E402
 
 
 def verdicts(report: dict) -> str:
@@ -106,12 +109,20 @@ def main() -> None:
                          "config_<settings>.yaml, the report to diagnosis_<mode>_<settings>)")
     ap.add_argument("--reuse", action="store_true",
                     help="judge a recording's existing report instead of diagnosing it again")
+    ap.add_argument("--before", type=Path, metavar="DIR",
+                    help="the same recordings diagnosed by another build (its --out): a column with its verdicts")
+    ap.add_argument("--readme", type=Path)
+    ap.add_argument("--section", default="mujoco-diagnosis", help="the README's markers to write between")
     a = ap.parse_args()
     sections = cases.sections_of(a.set)
     mode = cases.tagged("robot_contact" if a.robot_contact else "free", a.set)
-    lines = ["| recording | shape | concealed | shown (windows the effect moves 5 mm) | named | estimate (truth) | error | "
-             "evidence on the concealed object | 1 s open loop before -> after (mm) | pass | minutes |",
-             "| --- | --- | --- | --- | --- | --- | ---: | --- | --- | --- | ---: |"]
+    before = ["named before"] if a.before else []
+    head = ["recording", "shape", "concealed", "shown (windows the effect moves 5 mm)", *before, "named",
+            "estimate (truth)", "error", "evidence on the concealed object", "1 s open loop before -> after (mm)",
+            "pass", "minutes"]
+    lines = ["| " + " | ".join(head) + " |",
+             "| " + " | ".join("---:" if h in ("error", "minutes") else "---" for h in head) + " |"]
+    passed_before = 0
     passed = total = 0
     observable = [0, 0]  # named, effects shown free of the robot
     controls = [0, 0]  # clean, all
@@ -130,16 +141,26 @@ def main() -> None:
                 config.write_text(cases.with_settings((folder / "config.yaml").read_text(), sections))
             command = [a.pegs, "diagnose", str(folder / "bag"), "--config", str(config),
                        "--out", str(diag)] + (["--robot-contact"] if a.robot_contact else [])
-            if a.reuse and (diag / "report.json").is_file():
+            reused = a.reuse and (diag / "report.json").is_file()
+            if reused:
                 result = subprocess.CompletedProcess(command, 0, "", "")
             else:
                 result = subprocess.run(command, capture_output=True, text=True)
-            minutes = (time.time() - clock) / 60
+            minutes = "-" if reused else f"{(time.time() - clock) / 60:.1f}"
+            earlier = []
+            if a.before:
+                old = a.before / folder.name / diag.name / "report.json"
+                if old.is_file():
+                    w = judge(truth, json.loads(old.read_text()))
+                    passed_before += w["passed"]
+                    earlier = [w["named"] + (" (pass)" if w["passed"] else "")]
+                else:
+                    earlier = ["-"]
             total += 1
             if result.returncode != 0:
                 last = (result.stderr.strip().splitlines() or ["?"])[-1]
-                lines.append(f"| {folder.name} | {truth['shape']} | {truth['family']} | {shown_cell} | failed: {last} | | | | | "
-                             f"no | {minutes:.1f} |")
+                lines.append("| " + " | ".join([folder.name, truth["shape"], truth["family"], shown_cell, *earlier,
+                                                f"failed: {last}", "", "", "", "", "no", minutes]) + " |")
                 observable[1] += bool(free)
                 print(lines[-1], flush=True)
                 continue
@@ -157,9 +178,9 @@ def main() -> None:
             err = f"{100 * v['error']:.0f} %" if v["error"] is not None else "-"
             obj = next((o for o in report["objects"] if o["object"] == truth["object"]), report["objects"][0])
             loop = f"{obj['before']['open_loop_error_mm']:.1f} -> {obj['after']['open_loop_error_mm']:.1f}"
-            lines.append(f"| {folder.name} | {truth['shape']} | {truth['family']} | {shown_cell} | {v['named']} | {est} | {err} | "
-                         f"{evidence(report, truth['object'])} | {loop} | {'yes' if v['passed'] else 'no'} | "
-                         f"{minutes:.1f} |")
+            lines.append("| " + " | ".join([folder.name, truth["shape"], truth["family"], shown_cell, *earlier, v["named"],
+                                            est, err, evidence(report, truth["object"]), loop,
+                                            "yes" if v["passed"] else "no", minutes]) + " |")
             print(lines[-1], flush=True)
     windows = "every window of motion, the robot's pushes included" if a.robot_contact else \
         "windows where the object moves without the robot touching it"
@@ -171,13 +192,17 @@ def main() -> None:
             f"Of the {observable[1]} effects the recordings show free of the robot (in {FREE_SHOWN_ENOUGH} or more "
             f"windows the robot does not touch, the effect moves the object's end 5 mm or more: `shown`, from "
             f"MuJoCo replaying each window without it), {observable[0]} named. "
-            f"Generated by `tests/mujoco/judge.py{' --robot-contact' if a.robot_contact else ''}"
+            + (f"Diagnosed by another build (`--before`, column \"named before\"): {passed_before} passed. "
+               if a.before else "")
+            + f"Generated by `tests/mujoco/judge.py{' --robot-contact' if a.robot_contact else ''}"
             f"{''.join(f' --set {x}' for x in a.set)}`.\n\n"
             + "\n".join(lines) + "\n")
     a.out.mkdir(parents=True, exist_ok=True)
     name = cases.tagged("diagnosis_robot_contact" if a.robot_contact else "diagnosis", a.set)
     (a.out / f"{name}.md").write_text(text)
     print(text)
+    if a.readme:
+        table.write_section(a.readme, a.section, text)
 
 
 if __name__ == "__main__":
