@@ -119,28 +119,27 @@ pub fn locate_all(trace: &Trace, plan: &Plan) -> Result<Vec<Object>> {
 fn windows(trace: &Trace, plan: &Plan, object: &Object) -> Result<(Vec<Prediction>, Vec<bool>)> {
     let (shape, horizon) = (object.shape, plan.horizon);
     let last = trace.states.len().saturating_sub(horizon + 1);
-    let struck: Vec<f64> = (object.samples.iter())
-        .filter(|s| s.touching_object)
-        .map(|s| s.t)
-        .collect();
-    let time = |k: usize| trace.states[k].time;
-    let struck_between = |from: usize, to: usize| {
-        (struck.iter()).any(|t| *t >= time(from) - 1e-9 && *t <= time(to) + 1e-9)
+    // The ticks at which the object touched the robot, and another object.
+    let times_when = |touching: fn(&Sample) -> bool| -> Vec<f64> {
+        (object.samples.iter().filter(|s| touching(s)))
+            .map(|s| s.t)
+            .collect()
+    };
+    let (pushed, struck) = (
+        times_when(|s| s.touching_robot),
+        times_when(|s| s.touching_object),
+    );
+    // Whether one of `times` falls in the window starting at state `k`.
+    let within = |times: &[f64], k: usize| {
+        let (t0, t1) = (trace.states[k].time, trace.states[k + horizon].time);
+        times.iter().any(|t| *t >= t0 - 1e-9 && *t <= t1 + 1e-9)
     };
     let all: Vec<usize> = (0..=last)
         .step_by(WINDOW_STRIDE)
         .filter(|&k| trace.states[k].time >= plan.t_first + plan.opts.settle)
-        .filter(|&k| {
-            !(trace.jumps_between(shape, k, k + horizon) && struck_between(k, k + horizon))
-        })
+        .filter(|&k| !(trace.jumps_between(shape, k, k + horizon) && within(&struck, k)))
         .collect();
     let base = trace.predict(&trace.physics, shape, &all, horizon)?;
-    let pushed: Vec<f64> = object
-        .samples
-        .iter()
-        .filter(|s| s.touching_robot)
-        .map(|s| s.t)
-        .collect();
     let moves = |p: &Prediction| {
         let c0 = trace.centroid(shape, p.start);
         let tracked = (p.start..=p.start + horizon)
@@ -149,15 +148,11 @@ fn windows(trace: &Trace, plan: &Plan, object: &Object) -> Result<(Vec<Predictio
         let predicted = p.path.iter().map(|q| q.distance(c0)).fold(0.0, f32::max);
         tracked.max(predicted) > ACTIVE_MOTION
     };
-    let touched = |p: &Prediction| {
-        let (t0, t1) = (time(p.start), time(p.start + horizon));
-        pushed.iter().any(|t| *t >= t0 - 1e-9 && *t <= t1 + 1e-9)
-    };
     Ok(base
         .into_iter()
         .filter(|p| moves(p))
         .map(|p| {
-            let touched = touched(&p);
+            let touched = within(&pushed, p.start);
             (p, touched)
         })
         .filter(|(_, touched)| plan.opts.robot_contact || !touched)
