@@ -550,6 +550,9 @@ pub struct Corrector {
     /// Per shape, which of its Gaussians' depth the pose search scores
     /// (`relocate::depth_trusted`, taken the first time it has depth); None: not yet.
     depth_trusted: Vec<Option<Vec<bool>>>,
+    /// Per shape, the pose the local search found last tick (`relocate::Corrector::local_poses`
+    /// searches around it as well as around the model's); None: none yet, or forgotten.
+    last_found: Vec<Option<crate::math::Pose>>,
     /// The camera the next iteration starts with (`cameras_per_iteration` > 0).
     turn: usize,
     /// The static scene rendered into each camera seen so far (`SceneRender`).
@@ -584,6 +587,7 @@ impl Corrector {
             pushes: FrictionMemory::default(),
             agreement_avg: Vec::new(),
             depth_trusted: Vec::new(),
+            last_found: Vec::new(),
             turn: 0,
             backgrounds: Vec::new(),
             backdrops: Vec::new(),
@@ -963,6 +967,9 @@ impl Corrector {
                 *pull = PullState::default();
             }
             self.pushes.forget(i);
+        }
+        if let Some(found) = self.last_found.get_mut(shape as usize) {
+            *found = None;
         }
         for g in world.gaussians_of(shape) {
             if let Some(d) = self.displacements.get_mut(g) {

@@ -17,12 +17,14 @@
 //! (`depth_trusted`). A grid's candidates are scored on every core, nearest its centre first, and
 //! each is dropped as soon as its score, bounded from what is left to count, cannot reach a score
 //! already found: the search finds the same pose as one that scores every candidate in full, in
-//! grid order.
+//! grid order. The local search looks around the model's pose and, once the model has turned an
+//! object further than the grid turns from where the search found it the tick before, around
+//! that pose too (`Corrector::last_found`), keeping the clearly better.
 //!
 //! Owns the search and its score; pulling or moving the object, and reporting a jump, are the
 //! correction's (`pose_pulls`) and the tracker's.
 
-use super::{Corrector, View};
+use super::{Corrector, View, pull};
 use crate::math::Pose;
 use crate::render::Camera;
 use crate::world::{ShapeId, ShapeKind, World};
@@ -105,6 +107,10 @@ impl Default for Search {
         }
     }
 }
+
+/// How much better (share of Gaussians that look like themselves) the best pose around where the
+/// images had an object last tick must score than the best around the model's to be taken.
+const MEMORY_MARGIN: f32 = 0.05;
 
 /// What the search found: the object's pose there and its score, and the score where the model
 /// has it now (both the share of visible Gaussians whose pixel looks like them, 0 to 1).
@@ -711,7 +717,8 @@ impl Corrector {
     }
 
     /// For each rigid tracked object `wanted`, the best pose within `radius` of where the model
-    /// has it (`Search::local`), with its score and the score where it is.
+    /// has it (`Search::local`), or of where this search found it last tick where the model has
+    /// since turned it out of the grid's reach, with its score and the score where it is.
     pub fn local_poses(
         &mut self,
         world: &World,
@@ -720,6 +727,7 @@ impl Corrector {
         wanted: &[bool],
     ) -> Result<Vec<Option<Found>>> {
         if !wanted.iter().any(|w| *w) {
+            self.last_found.clear();
             return Ok(vec![None; world.shapes.len()]);
         }
         let search = Search {
@@ -732,9 +740,11 @@ impl Corrector {
         };
         self.depth_trusted.resize(world.shapes.len(), None);
         let mut trusted = std::mem::take(&mut self.depth_trusted);
+        let mut last_found = std::mem::take(&mut self.last_found);
+        last_found.resize(world.shapes.len(), None);
         let backgrounds = self.backgrounds_of(world, views)?;
         let others = Others::of(world);
-        let found = (0..world.shapes.len())
+        let found: Vec<Option<Found>> = (0..world.shapes.len())
             .map(|s| {
                 if world.shapes.kind[s] != ShapeKind::Rigid || !wanted.get(s).copied()? {
                     return None;
@@ -751,18 +761,42 @@ impl Corrector {
                     }
                     false => None,
                 };
-                search_around(
-                    world,
-                    &others,
-                    s as ShapeId,
-                    here,
-                    &frames,
-                    &search,
-                    trusted,
-                )
+                let around = |reference| {
+                    search_around(
+                        world,
+                        &others,
+                        s as ShapeId,
+                        reference,
+                        &frames,
+                        &search,
+                        trusted,
+                    )
+                };
+                let at_model = around(here);
+                // Also around where the images had the object last tick, once the model has
+                // turned it further from there than the grid turns: a collision the model plays
+                // out wrong can spin an object out of a grid around itself within a few ticks
+                // (MuJoCo's heavy5_3000: a light box the model turned 84 deg where the real one
+                // turned 26 the other way, held 20 mm off to the end). Taken only where it
+                // scores clearly better than the best around the model.
+                let last = last_found[s].filter(|last| {
+                    let turn = (last.rotation * here.rotation.inverse()).to_scaled_axis().z;
+                    turn.abs() > search.max_turn
+                });
+                match last.and_then(around) {
+                    Some(there)
+                        if at_model.is_none_or(|m| there.score >= m.score + MEMORY_MARGIN) =>
+                    {
+                        Some(there)
+                    }
+                    _ => at_model,
+                }
             })
             .collect();
         self.depth_trusted = trusted;
+        self.last_found = (found.iter())
+            .map(|f| f.filter(pull::convincing).map(|f| f.pose))
+            .collect();
         Ok(found)
     }
 }
@@ -1287,6 +1321,76 @@ mod tests {
         let at = Pose::from_translation(Vec3::new(x, 0.0, 0.02));
         let s = b.add_rigid("slab", &points, 0.0025, 0.001, at, BLUE);
         (b.build(), s)
+    }
+
+    /// The yaw (deg) of `pose` about the vertical.
+    fn yaw_deg(pose: &Pose) -> f32 {
+        pose.rotation.to_scaled_axis().z.to_degrees()
+    }
+
+    #[test]
+    fn an_object_the_model_spins_away_is_looked_for_where_the_images_had_it_last_tick() {
+        // The images hold a blue slab 8 x 5 cm still at the origin. The model has it turned
+        // 8 deg, then, a tick later, 40 deg (a collision the model plays out wrong spins it). The
+        // local grid turns 12 deg either way of the model's pose: from 40 deg only a search that
+        // also looks where the images had the slab last tick finds it still unturned; a
+        // corrector that saw nothing before finds it no nearer than 22 deg (the grid's 12 and its
+        // fine steps' 6).
+        let (shown, _) = blue_slab(0.08, 0.0);
+        let seen = Seen::around(&shown);
+        let views: Vec<View> = (seen.iter())
+            .map(|s| View {
+                camera: s.camera,
+                image: &s.image,
+                depth: None,
+            })
+            .collect();
+        let (model, s) = blue_slab(0.08, 0.0);
+        let turned = |deg: f32| {
+            let mut w = model.clone();
+            let pose = &mut w.shapes.pose[s as usize];
+            pose.rotation = Quat::from_rotation_z(deg.to_radians()) * pose.rotation;
+            w
+        };
+        let corrector = || {
+            let renderer = crate::render::RenderSettings::default();
+            Corrector::new(super::super::CorrectConfig::default(), renderer).expect("CPU renderer")
+        };
+        let wanted = vec![true; model.shapes.len()];
+        let found = |c: &mut Corrector, w: &World| {
+            let found = c.local_poses(w, &views, 0.04, &wanted).expect("search");
+            found[s as usize].expect("the slab is in view")
+        };
+        let mut tracking = corrector();
+        let first = found(&mut tracking, &turned(8.0));
+        assert!(
+            yaw_deg(&first.pose).abs() < 3.0,
+            "from 8 deg: {}",
+            yaw_deg(&first.pose)
+        );
+        let spun = turned(40.0);
+        let kept = found(&mut tracking, &spun);
+        assert!(
+            yaw_deg(&kept.pose).abs() < 3.0,
+            "remembered: {}",
+            yaw_deg(&kept.pose)
+        );
+        assert!(kept.score > kept.score_here + 0.1, "{kept:?}");
+        let fresh = found(&mut corrector(), &spun);
+        assert!(
+            yaw_deg(&fresh.pose) > 20.0,
+            "without memory: {}",
+            yaw_deg(&fresh.pose)
+        );
+        // A relocation forgets where the object was seen: the search is the model's alone again.
+        let mut moved = spun.clone();
+        tracking.forget(&mut moved, s);
+        let forgot = found(&mut tracking, &spun);
+        assert!(
+            yaw_deg(&forgot.pose) > 20.0,
+            "forgotten: {}",
+            yaw_deg(&forgot.pose)
+        );
     }
 
     #[test]
