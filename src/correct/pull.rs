@@ -12,7 +12,7 @@ use glam::Vec3;
 
 /// A pose whose Gaussians look like themselves in fewer than this share of their pixels is not
 /// where the images show the object (it is hidden, or not there at all): no pull.
-pub const POSE_MIN_SCORE: f32 = 0.5;
+const POSE_MIN_SCORE: f32 = 0.5;
 
 /// Below this gain in score (share of Gaussians that look like themselves) a better pose found
 /// nearby is noise.

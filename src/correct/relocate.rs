@@ -740,8 +740,7 @@ impl Corrector {
         };
         self.depth_trusted.resize(world.shapes.len(), None);
         let mut trusted = std::mem::take(&mut self.depth_trusted);
-        let mut last_found = std::mem::take(&mut self.last_found);
-        last_found.resize(world.shapes.len(), None);
+        let last_found = std::mem::take(&mut self.last_found);
         let backgrounds = self.backgrounds_of(world, views)?;
         let others = Others::of(world);
         let found: Vec<Option<Found>> = (0..world.shapes.len())
@@ -779,18 +778,14 @@ impl Corrector {
                 // (MuJoCo's heavy5_3000: a light box the model turned 84 deg where the real one
                 // turned 26 the other way, held 20 mm off to the end). Taken only where it
                 // scores clearly better than the best around the model.
-                let last = last_found[s].filter(|last| {
+                let last = last_found.get(s).copied().flatten().filter(|last| {
                     let turn = (last.rotation * here.rotation.inverse()).to_scaled_axis().z;
                     turn.abs() > search.max_turn
                 });
-                match last.and_then(around) {
-                    Some(there)
-                        if at_model.is_none_or(|m| there.score >= m.score + MEMORY_MARGIN) =>
-                    {
-                        Some(there)
-                    }
-                    _ => at_model,
-                }
+                let there = last.and_then(around).filter(|there| {
+                    at_model.is_none_or(|m| there.score >= m.score + MEMORY_MARGIN)
+                });
+                there.or(at_model)
             })
             .collect();
         self.depth_trusted = trusted;
