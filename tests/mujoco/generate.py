@@ -38,9 +38,10 @@ def seeds(text: str) -> list[int]:
 
 def record(kind: str, seed: int, out: Path, width: int, height: int, shape: str | None, stamp0: float,
            depth: str = "32FC1", layout: str = "pegs", storage: str = "mcap", support: str = "corners",
-           follow: bool = True) -> Path:
+           follow: bool = True, stiff_contacts: bool = False) -> Path:
     scene = scenes.draw(kind, seed, shape, from_start=not follow)
     scene.support = support
+    scene.stiff_contacts = stiff_contacts
     folder = out / f"{kind}_{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     clock = time.time()
@@ -82,13 +83,16 @@ def main() -> None:
                     help="lay out every push as recorded until the follow change: against the objects where "
                          "they stand at the start, the rod 3 cm behind the object's furthest extent (a later push "
                          "may bring the rod down into an object an earlier one moved, as an arm model that is off would)")
+    ap.add_argument("--stiff-contacts", action="store_true",
+                    help="contacts of the robot and the objects stiffer than MuJoCo's soft default (simulate.STIFF_CONTACT), "
+                         "with which a push needs the rod millimetres inside its object")
     a = ap.parse_args()
     kinds = {"all": scenes.KINDS, "model_errors": scenes.MODEL_ERRORS}.get(a.kind, [a.kind])
     chosen = seeds(a.seeds) if a.seeds else [a.seed if a.seed is not None else 0]
     for kind in kinds:
         for seed in chosen:
             record(kind, seed, a.out, a.width, a.height, a.shape, a.stamp0, a.depth, a.layout, a.storage, a.support,
-                   not a.plan_from_start)
+                   not a.plan_from_start, a.stiff_contacts)
 
 
 if __name__ == "__main__":

@@ -160,6 +160,9 @@ class Scene:
     # object an earlier push moved: MuJoCo's kinematic rod then passes into it (soft contacts)
     # while the images show it unmoved, as a robot model that is off would put its rod there.
     follow: bool = True
+    # The robot's and the objects' contacts at `simulate.STIFF_CONTACT` instead of MuJoCo's soft
+    # default, with which a push needs the rod millimetres inside its object.
+    stiff_contacts: bool = False
 
 
 def make_object(rng: random.Random, shape: str, name: str, label: int, x: float, y: float) -> Obj:

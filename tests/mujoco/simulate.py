@@ -25,6 +25,12 @@ TIP = (0.0, 0.0, -0.14)  # the rod's tip in the panda_pusher link frame
 TIP_HEIGHT = 0.02  # above the table while pushing
 ROD_RADIUS = 0.015  # the pusher rod's (urdf/panda_pusher.urdf)
 PARKED = (0.3, -0.35, 0.25)  # where the tip waits in a scene without pushes
+# MuJoCo's contact time constant and damping ratio (its `solref`) for the robot and the objects
+# where a scene asks for stiff contacts (`Scene.stiff_contacts`): three engine steps. MuJoCo's
+# default (0.02 s) is soft: a push needs the rod a few millimetres inside its object to move it, so
+# a pushed object lags the rod by that much and rests so once the rod stops (heavy5_3400: 6.5 mm
+# deep, over 3 mm for 72 frames), where a rigid one would rest against it.
+STIFF_CONTACT = (0.005, 1.0)
 HOME = [0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785]
 
 
@@ -119,6 +125,8 @@ def build(scene: Scene, urdf: str, width: int, height: int, rng: np.random.Gener
     for g in spec.geoms:
         g.rgba = [0.92, 0.92, 0.92, 1.0]
         g.friction = [mu, 0.005, 0.0001]
+        if scene.stiff_contacts:
+            g.solref = list(STIFF_CONTACT)
     spec.body("panda_pusher").add_site(name="tip", pos=list(TIP))
     world = spec.worldbody
     # With a friction patch the floor is frictionless and each object carries the friction of
@@ -138,6 +146,8 @@ def build(scene: Scene, urdf: str, width: int, height: int, rng: np.random.Gener
         body.ipos = list(com + np.array(o.com_offset))
         body.inertia = list(moments)
         geom = dict(rgba=[*o.colour, 1.0], friction=[mu, 0.005, 0.0001], density=0.0)
+        if scene.stiff_contacts:
+            geom["solref"] = list(STIFF_CONTACT)
         if scene.restitution is not None:
             geom["solref"] = [0.005, scene.restitution]
         if scene.support == "spread":
@@ -402,6 +412,8 @@ def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
     # Each push's start as it came: how far its tip is from the object along its line.
     begun = {"pushes": 0, "hand": 0}
     run.measured["starts"] = {"pushes": [], "hand": []}
+    # How far the driven robot sinks into each object it touches (`sunk_by_robot`).
+    run.measured["sunk"] = {}
     for k in range(steps + 1):
         t = k * dt
         for key in begun:
@@ -453,6 +465,10 @@ def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
         vz_before = data.qvel[nq + 2] if scene.restitution is not None else 0.0
         mujoco.mj_step(model, data)
         run.robot_touch[-1] |= touched_by(data, robot_geom, model.geom_bodyid, names)
+        for name, depth in sunk_by_robot(data, robot_geom, model.geom_bodyid, names).items():
+            sunk = run.measured["sunk"].setdefault(name, {"deepest_mm": 0.0, "frames_over_3mm": 0.0})
+            sunk["deepest_mm"] = max(sunk["deepest_mm"], round(depth * 1e3, 2))
+            sunk["frames_over_3mm"] += (depth > 0.003) / SUBSTEPS
         if scene.restitution is not None:
             vz = data.qvel[nq + 2]
             impacts.append((vz_before, vz))
@@ -474,6 +490,24 @@ def touched_by(data: mujoco.MjData, robot_geom: np.ndarray, geom_body: np.ndarra
             other = geom_body[b] if robot_geom[a] else geom_body[a]
             if other in names:
                 out.add(names[other])
+    return out
+
+
+def sunk_by_robot(data: mujoco.MjData, robot_geom: np.ndarray, geom_body: np.ndarray,
+                  names: dict[int, str]) -> dict[str, float]:
+    """Per object (by name) the robot is in contact with in `data`, how deep (m) the robot is
+    inside it, its deepest contact. MuJoCo's contacts are soft and the arm is driven whatever they
+    do: a rod that strikes an object passes into it for a few frames before it pushes it away,
+    where a rigid model (pegs's) has the object outside the rod, so the truth there is a pose no
+    rigid tracker can reach."""
+    out: dict[str, float] = {}
+    for c in data.contact[:data.ncon]:
+        a, b = int(c.geom1), int(c.geom2)
+        if robot_geom[a] == robot_geom[b]:
+            continue
+        other = geom_body[b] if robot_geom[a] else geom_body[a]
+        if other in names:
+            out[names[other]] = max(out.get(names[other], 0.0), -float(c.dist))
     return out
 
 

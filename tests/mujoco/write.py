@@ -187,9 +187,14 @@ def write_truth(out: Path, scene: Scene, run: Run, stamp0: float) -> None:
     if "shown" in run.measured:
         # What the recording can show of the effect (counterfactual.py), per object.
         truth["shown"] = run.measured["shown"]
+    # Per object the robot touched: how deep its rod went into it, and for how many frames over
+    # 3 mm (`simulate.sunk_by_robot`): poses there a rigid model cannot take.
+    truth["robot_sunk"] = {name: dict(deepest_mm=v["deepest_mm"], frames_over_3mm=round(v["frames_over_3mm"], 2))
+                           for name, v in run.measured.get("sunk", {}).items()}
     first = run.poses[0]
     truth.update(kind=scene.kind, seed=scene.seed, shape=scene.shape, duration=scene.duration,
                  friction=scene.friction, stamp0=stamp0, support=scene.support,
+                 stiff_contacts=scene.stiff_contacts,
                  objects=[dict(name=o.name, shape=o.shape, mass=o.mass, true_mass=o.true_mass,
                                com_offset=list(o.com_offset)) for o in scene.objects],
                  pushes=[dict(t0=p.t0, t1=p.t1, start=list(p.start), end=list(p.end), **came)
