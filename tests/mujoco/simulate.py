@@ -464,10 +464,11 @@ def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
         data.qvel[:nq] = (plan[k + 1] - plan[k]) / dt
         vz_before = data.qvel[nq + 2] if scene.restitution is not None else 0.0
         mujoco.mj_step(model, data)
-        run.robot_touch[-1] |= touched_by(data, robot_geom, model.geom_bodyid, names)
-        for name, depth in sunk_by_robot(data, robot_geom, model.geom_bodyid, names).items():
-            sunk = run.measured["sunk"].setdefault(name, {"deepest_mm": 0.0, "frames_over_3mm": 0.0})
-            sunk["deepest_mm"] = max(sunk["deepest_mm"], round(depth * 1e3, 2))
+        sunk_now = sunk_by_robot(data, robot_geom, model.geom_bodyid, names)
+        run.robot_touch[-1].update(sunk_now)
+        for name, depth in sunk_now.items():
+            sunk = run.measured["sunk"].setdefault(name, {"deepest_m": 0.0, "frames_over_3mm": 0.0})
+            sunk["deepest_m"] = max(sunk["deepest_m"], depth)
             sunk["frames_over_3mm"] += (depth > 0.003) / SUBSTEPS
         if scene.restitution is not None:
             vz = data.qvel[nq + 2]
@@ -479,27 +480,13 @@ def simulate(scene: Scene, urdf: str, width: int, height: int) -> Run:
     return run
 
 
-def touched_by(data: mujoco.MjData, robot_geom: np.ndarray, geom_body: np.ndarray, names: dict[int, str]) -> set[str]:
-    """The objects (by name) the robot is in contact with in `data`."""
-    if data.ncon == 0:
-        return set()
-    g1, g2 = data.contact.geom1[:data.ncon], data.contact.geom2[:data.ncon]
-    out = set()
-    for a, b in zip(g1, g2):
-        if robot_geom[a] != robot_geom[b]:
-            other = geom_body[b] if robot_geom[a] else geom_body[a]
-            if other in names:
-                out.add(names[other])
-    return out
-
-
 def sunk_by_robot(data: mujoco.MjData, robot_geom: np.ndarray, geom_body: np.ndarray,
                   names: dict[int, str]) -> dict[str, float]:
-    """Per object (by name) the robot is in contact with in `data`, how deep (m) the robot is
-    inside it, its deepest contact. MuJoCo's contacts are soft and the arm is driven whatever they
-    do: a rod that strikes an object passes into it for a few frames before it pushes it away,
-    where a rigid model (pegs's) has the object outside the rod, so the truth there is a pose no
-    rigid tracker can reach."""
+    """Per object (by name) the robot is in contact with in `data` (the objects it touches), how
+    deep (m) the robot is inside it, its deepest contact. MuJoCo's contacts are soft and the arm is
+    driven whatever they do: a rod that strikes an object passes into it for a few frames before it
+    pushes it away, where a rigid model (pegs's) has the object outside the rod, so the truth there
+    is a pose no rigid tracker can reach."""
     out: dict[str, float] = {}
     for c in data.contact[:data.ncon]:
         a, b = int(c.geom1), int(c.geom2)

@@ -189,7 +189,8 @@ def write_truth(out: Path, scene: Scene, run: Run, stamp0: float) -> None:
         truth["shown"] = run.measured["shown"]
     # Per object the robot touched: how deep its rod went into it, and for how many frames over
     # 3 mm (`simulate.sunk_by_robot`): poses there a rigid model cannot take.
-    truth["robot_sunk"] = {name: dict(deepest_mm=v["deepest_mm"], frames_over_3mm=round(v["frames_over_3mm"], 2))
+    truth["robot_sunk"] = {name: dict(deepest_mm=round(v["deepest_m"] * 1e3, 2),
+                                      frames_over_3mm=round(v["frames_over_3mm"], 2))
                            for name, v in run.measured.get("sunk", {}).items()}
     first = run.poses[0]
     truth.update(kind=scene.kind, seed=scene.seed, shape=scene.shape, duration=scene.duration,
