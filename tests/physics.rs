@@ -10,7 +10,7 @@ use pegs::physics::effects::{
 };
 use pegs::physics::{Effect, KinematicDriver, Solver};
 use pegs::physics::{GroundConfig, GroundPins, GroundSupport, PhysicsConfig};
-use pegs::world::{ShapeId, World};
+use pegs::world::{Primitive, ShapeId, Solid, World};
 use pegs::world::{WorldBuilder, box_lattice, cylinder_lattice, t_block_lattice};
 
 const R: f32 = 0.005;
@@ -1318,4 +1318,81 @@ fn an_object_put_into_a_pusher_settles_out_of_it_without_being_thrown() {
         moved > 0.5 * depth,
         "settled, the box stayed in the pusher ({moved} m)"
     );
+}
+
+/// How far (m) sideways a 10 x 10 x 5 cm box drifts while a kinematic wall pushes it along +x at
+/// 0.1 m/s for 1.5 s and a sideways acceleration `a` acts on it, with `contact_friction` between
+/// wall and box; the wall met as its exact solid (`Shapes::primitives`) or as its particles.
+fn drift_along_a_pushing_wall(a: f32, contact_friction: f32, exact: bool) -> f32 {
+    let half = Vec3::new(0.05, 0.05, 0.025);
+    let mut b = WorldBuilder::new();
+    let bx = add_resting_box(&mut b, half, Vec3::ZERO);
+    // One layer of particles, the wall's surface a radius in front of them.
+    let wall = box_lattice(Vec3::new(0.0, 0.15, half.z), SPACING);
+    let start = Vec3::new(-half.x - 2.0 * R, 0.0, resting_height(half.z));
+    let pusher = b.add_kinematic("wall", &wall, R, Pose::from_translation(start), Vec3::ONE);
+    if exact {
+        let solid = Solid::Box {
+            half: Vec3::new(R, 0.15 + R, half.z + R),
+        };
+        b.set_primitives(
+            pusher,
+            vec![Primitive {
+                origin: Pose::IDENTITY,
+                solid,
+            }],
+        );
+    }
+    let mut w = b.build();
+    let mut config = PhysicsConfig::default();
+    config.collisions.static_friction = contact_friction;
+    config.collisions.kinetic_friction = contact_friction;
+    let mut solver = Solver::new(config, &w).unwrap();
+    let dt = solver.config().dt;
+    let y0 = w.shape_centroid(bx).y;
+    for tick in 0..45 {
+        let t = (tick + 1) as f32 * dt;
+        w.shapes.target[pusher as usize] =
+            Pose::from_translation(start + Vec3::new(0.1 * t, 0.0, 0.0));
+        for i in w.shapes.range(bx) {
+            w.particles.external_force[i] = Vec3::new(0.0, M * a, 0.0);
+        }
+        solver.step(&mut w).unwrap();
+    }
+    assert!(
+        w.shape_centroid(bx).x > 0.1,
+        "the box is pushed along: {}",
+        w.shape_centroid(bx)
+    );
+    w.shape_centroid(bx).y - y0
+}
+
+/// A box pushed by a frictionless wall slides along it under any sideways force, as Coulomb
+/// friction on the table has it: sliding at v along the push, its sideways speed settles where
+/// the table's friction along its velocity balances the force, a v / sqrt((mu g)^2 - a^2). With
+/// friction between wall and box it stays, below mu_wall x the push (mu_table g per unit mass).
+/// Met as its particles the wall holds the box in the grooves between them whatever the wall's
+/// friction: it drifts half a spacing and stops.
+#[test]
+fn a_box_pushed_along_a_frictionless_wall_slides_sideways_as_coulomb_friction_has_it() {
+    let mu = PhysicsConfig::default().ground.kinetic_friction;
+    let (v, in_contact) = (0.1, 1.5 - 0.05);
+    for a in [0.25f32, 0.5] {
+        let coulomb = a * v / ((mu * G).powi(2) - a * a).sqrt() * in_contact;
+        let exact = drift_along_a_pushing_wall(a, 0.0, true);
+        let particles = drift_along_a_pushing_wall(a, 0.0, false);
+        let held = drift_along_a_pushing_wall(a, 0.3, true);
+        eprintln!(
+            "a {a}: Coulomb {:.1} mm; exact wall {:.1} mm, its particles {:.1} mm; with wall friction 0.3 {:.2} mm",
+            coulomb * 1e3,
+            exact * 1e3,
+            particles * 1e3,
+            held * 1e3
+        );
+        assert!(
+            (0.8 * coulomb..1.15 * coulomb).contains(&exact),
+            "a {a}: drifted {exact} m along the wall, Coulomb {coulomb}"
+        );
+        assert!(held.abs() < 0.001, "a {a}: drifted {held} m with friction");
+    }
 }

@@ -470,3 +470,38 @@ fn robot_gaussians_render_and_occlude_objects_behind_them() {
         "beside the rod the block shows: {beside}"
     );
 }
+
+/// With `robot.contact: exact` every link whose collision geometry is all primitives (the bundled
+/// pusher: boxes and cylinders) is met as those solids, placed where the URDF has them; by
+/// default none is (the links' particles).
+#[test]
+fn exact_contact_gives_every_primitive_link_its_urdf_solids_and_the_default_none() {
+    let model = bundled("panda_pusher.urdf");
+    let q = q_of(&model, &arm_motion(0.0));
+    let build = |contact| {
+        let config = RobotConfig {
+            contact,
+            ..RobotConfig::default()
+        };
+        let mut b = WorldBuilder::new();
+        let robot = RobotInWorld::add(&mut b, model.clone(), &q, &config).unwrap();
+        (robot, b.build())
+    };
+    let (robot, world) = build(pegs::robot::RobotContact::Exact);
+    for &(li, s) in &robot.link_shapes {
+        let link = &model.links[li];
+        let solids = &world.shapes.primitives[s as usize];
+        assert_eq!(solids.len(), link.geometry.len(), "link {}", link.name);
+        for (solid, g) in solids.iter().zip(&link.geometry) {
+            let at = g.origin.translation.as_vec3();
+            assert!(
+                solid.origin.translation.distance(at) < 1e-6,
+                "link {}: solid at {} against {at}",
+                link.name,
+                solid.origin.translation
+            );
+        }
+    }
+    let (_, world) = build(pegs::robot::RobotContact::Particles);
+    assert!(world.shapes.primitives.iter().all(|p| p.is_empty()));
+}

@@ -1,15 +1,71 @@
 //! Particle-particle contacts between different shapes, as Jacobi corrections gathered per
 //! particle from its candidate list (no scatter, so it parallelises without atomics and is
 //! deterministic). Friction uses the relative displacement over the substep.
+//!
+//! A kinematic shape whose exact solids are known (`Shapes::primitives`, a URDF's boxes and
+//! cylinders with `robot.contact: exact`) is met as those solids (`sdf`), not particle by
+//! particle: its particles only tell which pushable particles are near it. Met particle by
+//! particle, a face pressed against a lattice of spheres sits in its grooves, and a pushed box
+//! cannot slide along its pusher (see `tests/physics.rs`).
 
 use super::ground::friction;
+use super::sdf;
 use super::spatial_hash::NeighbourLists;
 use super::{TOUCH_SLACK, Touched};
-use crate::world::{Particles, Phase};
+use crate::math::Pose;
+use crate::world::{Particles, Phase, Primitive, ShapeId};
 use glam::Vec3;
 use rayon::prelude::*;
 
 const CHUNK: usize = 256;
+
+/// The shapes met as their exact solids: per particle its shape, per shape its solids (empty:
+/// met particle by particle) and its pose now and at the start of the substep.
+#[derive(Clone, Copy)]
+pub struct Solids<'a> {
+    pub shape: &'a [ShapeId],
+    pub primitives: &'a [Vec<Primitive>],
+    pub now: &'a [Pose],
+    pub before: &'a [Pose],
+}
+
+/// Most solid shapes one particle meets at once (further ones are not met).
+const SOLIDS_MET: usize = 4;
+
+impl Solids<'_> {
+    /// None: nothing is met as a solid.
+    #[cfg(test)]
+    const NONE: Solids<'static> = Solids {
+        shape: &[],
+        primitives: &[],
+        now: &[],
+        before: &[],
+    };
+
+    fn of(&self, j: usize) -> Option<ShapeId> {
+        let s = *self.shape.get(j)?;
+        self.primitives
+            .get(s as usize)
+            .is_some_and(|p| !p.is_empty())
+            .then_some(s)
+    }
+
+    /// The contact of a particle at `x` (radius `r`) with solid shape `s`: its normal, depth, and
+    /// how far the solid's surface there moved over the substep.
+    fn contact(&self, s: ShapeId, x: Vec3, r: f32) -> Option<(Vec3, f32, Vec3)> {
+        let s = s as usize;
+        let now = self.now[s];
+        let (distance, normal) = sdf::distance_and_normal(&self.primitives[s], &now, x);
+        let depth = r - distance;
+        if depth <= 0.0 || normal == Vec3::ZERO {
+            return None;
+        }
+        let surface = x - normal * distance;
+        let before = self.before.get(s).copied().unwrap_or(now);
+        let was = before.transform_point(now.inverse().transform_point(surface));
+        Some((normal, depth, surface - was))
+    }
+}
 
 /// Sum of the contact corrections of each pushable particle into `delta`, and their number into
 /// `count`. Positions are read, never written: apply with `apply_averaged`. A particle touching
@@ -20,6 +76,7 @@ pub fn collision_corrections(
     prev: &[Vec3],
     inv_mass: &[f32],
     radius: &[f32],
+    solids: Solids,
     lists: &NeighbourLists,
     mu_static: f32,
     mu_kinetic: f32,
@@ -38,9 +95,18 @@ pub fn collision_corrections(
                 let mut sum = Vec3::ZERO;
                 let mut n_contacts = 0;
                 let wi = inv_mass[i];
+                let mut met = [ShapeId::MAX; SOLIDS_MET];
+                let mut n_met = 0;
                 if wi > 0.0 {
                     for &j in lists.of(i) {
                         let j = j as usize;
+                        if let Some(s) = solids.of(j) {
+                            if !met[..n_met].contains(&s) && n_met < SOLIDS_MET {
+                                met[n_met] = s;
+                                n_met += 1;
+                            }
+                            continue;
+                        }
                         let d = pos[i] - pos[j];
                         let dist = d.length();
                         let depth = radius[i] + radius[j] - dist;
@@ -55,6 +121,18 @@ pub fn collision_corrections(
                         sum += share * (depth * normal + slip);
                         n_contacts += 1;
                         sch[k] |= inv_mass[j] <= 0.0;
+                    }
+                    for &s in &met[..n_met] {
+                        let Some((normal, depth, moved)) = solids.contact(s, pos[i], radius[i])
+                        else {
+                            continue;
+                        };
+                        let rel = (pos[i] - prev[i]) - moved;
+                        let tangential = rel - rel.dot(normal) * normal;
+                        let (slip, _) = friction(tangential, depth, 1.0, mu_static, mu_kinetic);
+                        sum += depth * normal + slip;
+                        n_contacts += 1;
+                        sch[k] = true;
                     }
                 }
                 dch[k] = sum;
@@ -122,6 +200,7 @@ mod tests {
             &prev,
             &inv_mass,
             &radius,
+            Solids::NONE,
             &lists,
             0.0,
             0.0,
@@ -156,6 +235,7 @@ mod tests {
             &pos,
             &[1.0, 0.0],
             &[0.01, 0.01],
+            Solids::NONE,
             &lists,
             0.0,
             0.0,

@@ -14,6 +14,7 @@ mod config;
 mod distance;
 pub mod effects;
 mod ground;
+mod sdf;
 mod shape_matching;
 mod spatial_hash;
 
@@ -108,6 +109,12 @@ pub struct Solver {
     hash: SpatialHash,
     neighbours: NeighbourLists,
     tick_start: Vec<Pose>,
+    /// Each shape's pose at the start of the current substep (how far a solid's surface moved).
+    substep_start: Vec<Pose>,
+    /// Per particle, how much further than `r_i + r_j + margin` a pushable particle lists it as a
+    /// contact candidate: a shape met as its exact solids (`Shapes::primitives`) has its surface a
+    /// particle radius outside its particles, and between them.
+    further: Vec<f32>,
     attachments: distance::LongRangeAttachments,
     /// Shapes whose speed the coming tick caps at `SETTLING_SPEED` (`settle`).
     settling: Vec<ShapeId>,
@@ -142,6 +149,8 @@ impl Solver {
             hash: SpatialHash::default(),
             neighbours: NeighbourLists::default(),
             tick_start: Vec::new(),
+            substep_start: Vec::new(),
+            further: Vec::new(),
             attachments: distance::LongRangeAttachments::default(),
             settling: Vec::new(),
             stats: TickStats::default(),
@@ -196,6 +205,20 @@ impl Solver {
         self.pinned = vec![false; n];
         self.grip = vec![ground::Grip::Free; n];
         self.attachments = distance::LongRangeAttachments::build(world, &self.inv_mass);
+        self.further = (0..n)
+            .map(|i| {
+                let s = world.particles.shape[i] as usize;
+                match world
+                    .shapes
+                    .primitives
+                    .get(s)
+                    .is_some_and(|p| !p.is_empty())
+                {
+                    true => SOLID_REACH * world.particles.radius[i],
+                    false => 0.0,
+                }
+            })
+            .collect();
         self.stats.ground_contacts = vec![0; ns];
         self.bound_to = (n, ns);
         Ok(())
@@ -317,6 +340,7 @@ impl Solver {
         driver: &mut dyn KinematicDriver,
         fraction: f32,
     ) {
+        self.substep_start.clone_from(&world.shapes.pose);
         for s in 0..world.shapes.len() {
             if world.shapes.kind[s] != ShapeKind::Kinematic {
                 continue;
@@ -400,7 +424,8 @@ impl Solver {
         let margin = self.config.collisions.margin * max_radius;
         // Only particles within reach of one that can be pushed can be a contact partner: the
         // rest (most of a robot, far from the objects) stay out of the hash.
-        let reach = 2.0 * max_radius + margin;
+        let further = self.further.iter().copied().fold(0.0f32, f32::max);
+        let reach = 2.0 * max_radius + margin + further;
         let pushed = (0..p.len()).filter(|&i| self.inv_mass[i] > 0.0);
         let (lo, hi) = pushed.fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), i| {
             (lo.min(p.position[i]), hi.max(p.position[i]))
@@ -414,7 +439,7 @@ impl Solver {
             &p.radius,
             &p.shape,
             &self.inv_mass,
-            margin,
+            (margin, &self.further),
             &mut self.neighbours,
         );
         self.stats.contact_candidates = self.neighbours.pair_count();
@@ -463,6 +488,12 @@ impl Solver {
                 &self.prev,
                 &self.inv_mass,
                 &p.radius,
+                collide::Solids {
+                    shape: &p.shape,
+                    primitives: &world.shapes.primitives,
+                    now: &world.shapes.pose,
+                    before: &self.substep_start,
+                },
                 &self.neighbours,
                 c.static_friction,
                 c.kinetic_friction,
@@ -643,6 +674,12 @@ impl Solver {
         }
     }
 }
+
+/// How much further (in its radii) a particle of a shape met as its solids is listed as a contact
+/// candidate: its solid's surface lies a radius outside it, and up to half a diagonal of the
+/// sampling between it and the next (at 0.5, the default margin, a bar pushed end-on by the
+/// rod met it 3 mm deep at once, and was thrown).
+const SOLID_REACH: f32 = 1.5;
 
 /// Smallest number of particles a cheap per-particle loop hands to one thread.
 const PAR_MIN: usize = 8192;

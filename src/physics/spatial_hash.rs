@@ -116,7 +116,7 @@ impl SpatialHash {
 const CHUNK: usize = 512;
 
 /// For each particle that can be pushed (`inv_mass > 0`), list the particles of *other* shapes
-/// within `r_i + r_j + margin`. Deterministic: lists are in particle-index order within each
+/// within `r_i + r_j + margin + further_j` (`further` empty: none further). Deterministic: lists are in particle-index order within each
 /// bucket, and chunks are concatenated in order.
 pub fn find_neighbours(
     hash: &SpatialHash,
@@ -124,7 +124,7 @@ pub fn find_neighbours(
     radius: &[f32],
     shape: &[u32],
     inv_mass: &[f32],
-    margin: f32,
+    (margin, further): (f32, &[f32]),
     out: &mut NeighbourLists,
 ) {
     let n = positions.len();
@@ -141,7 +141,8 @@ pub fn find_neighbours(
                     hash.for_each_near(pi, |j| {
                         let j = j as usize;
                         if shape[j] != si {
-                            let reach = ri + radius[j] + margin;
+                            let more = further.get(j).copied().unwrap_or(0.0);
+                            let reach = ri + radius[j] + margin + more;
                             if pi.distance_squared(positions[j]) < reach * reach {
                                 list.push(j as u32);
                             }
@@ -191,7 +192,15 @@ mod tests {
         let mut hash = SpatialHash::default();
         hash.build(&pos, 2.0 * 0.008 + margin);
         let mut lists = NeighbourLists::default();
-        find_neighbours(&hash, &pos, &radius, &shape, &inv_mass, margin, &mut lists);
+        find_neighbours(
+            &hash,
+            &pos,
+            &radius,
+            &shape,
+            &inv_mass,
+            (margin, &[]),
+            &mut lists,
+        );
         let mut total = 0;
         for i in 0..n {
             let mut want: Vec<u32> = Vec::new();
@@ -223,11 +232,19 @@ mod tests {
             .map(|i| if pos[i].x < 0.0 { inv_mass[i] } else { 0.0 })
             .collect();
         let mut all = NeighbourLists::default();
-        find_neighbours(&hash, &pos, &radius, &shape, &half, margin, &mut all);
+        find_neighbours(&hash, &pos, &radius, &shape, &half, (margin, &[]), &mut all);
         let mut near = SpatialHash::default();
         near.build_within(&pos, reach, (lo - reach, hi + reach));
         let mut within = NeighbourLists::default();
-        find_neighbours(&near, &pos, &radius, &shape, &half, margin, &mut within);
+        find_neighbours(
+            &near,
+            &pos,
+            &radius,
+            &shape,
+            &half,
+            (margin, &[]),
+            &mut within,
+        );
         assert_eq!(within.offsets, all.offsets);
         assert_eq!(within.neighbours, all.neighbours);
         assert!(near.sorted.len() < n, "particles beyond reach are left out");

@@ -76,6 +76,11 @@ impl WorldBuilder {
         s
     }
 
+    /// The exact geometry kinematic `shape`'s particles sample (`Shapes::primitives`).
+    pub fn set_primitives(&mut self, shape: ShapeId, primitives: Vec<super::Primitive>) {
+        self.world.shapes.primitives[shape as usize] = primitives;
+    }
+
     fn push_gaussian(&mut self, particle: usize, radius: f32, colour: Vec3) {
         self.world.gaussians.push(
             particle as u32,

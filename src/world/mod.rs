@@ -14,7 +14,7 @@ pub use constraints::DistanceConstraints;
 pub use gaussians::{Gaussians, NO_PARENT};
 pub use lattice::{box_lattice, cylinder_lattice, t_block_lattice};
 pub use particles::{Particles, Phase};
-pub use shapes::{ShapeId, ShapeKind, Shapes};
+pub use shapes::{Primitive, ShapeId, ShapeKind, Shapes, Solid};
 
 use crate::math::Pose;
 use glam::{Quat, Vec3};

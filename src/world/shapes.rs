@@ -39,6 +39,36 @@ pub struct Shapes {
     pub center_of_mass: Vec<Vec3>,
     /// Inertia tensor about the centre of mass in the body frame, kg m^2 (particles as solid spheres).
     pub inertia: Vec<Mat3>,
+    /// Kinematic shapes: the exact geometry their particles sample, in the body frame, where it
+    /// is known (a URDF's primitives); contacts then meet it instead of the particles. Empty: the
+    /// particles.
+    pub primitives: Vec<Vec<Primitive>>,
+}
+
+/// A solid of known geometry at `origin` in its shape's body frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Primitive {
+    pub origin: Pose,
+    pub solid: Solid,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Solid {
+    Box {
+        half: Vec3,
+    },
+    /// Along the local z axis.
+    Cylinder {
+        radius: f32,
+        half_length: f32,
+    },
+    Capsule {
+        radius: f32,
+        half_length: f32,
+    },
+    Sphere {
+        radius: f32,
+    },
 }
 
 impl Shapes {
@@ -72,6 +102,7 @@ impl Shapes {
         self.mass.push(0.0);
         self.center_of_mass.push(Vec3::ZERO);
         self.inertia.push(Mat3::ZERO);
+        self.primitives.push(Vec::new());
         (self.name.len() - 1) as ShapeId
     }
 
