@@ -34,14 +34,14 @@ const SOLIDS_MET: usize = 4;
 
 impl Solids<'_> {
     /// None: nothing is met as a solid.
-    #[cfg(test)]
-    const NONE: Solids<'static> = Solids {
+    pub const NONE: Solids<'static> = Solids {
         shape: &[],
         primitives: &[],
         now: &[],
         before: &[],
     };
 
+    #[inline]
     fn of(&self, j: usize) -> Option<ShapeId> {
         let s = *self.shape.get(j)?;
         self.primitives

@@ -115,6 +115,8 @@ pub struct Solver {
     /// contact candidate: a shape met as its exact solids (`Shapes::primitives`) has its surface a
     /// particle radius outside its particles, and between them.
     further: Vec<f32>,
+    /// The largest of `further` (0: no shape is met as its solids).
+    furthest: f32,
     attachments: distance::LongRangeAttachments,
     /// Shapes whose speed the coming tick caps at `SETTLING_SPEED` (`settle`).
     settling: Vec<ShapeId>,
@@ -151,6 +153,7 @@ impl Solver {
             tick_start: Vec::new(),
             substep_start: Vec::new(),
             further: Vec::new(),
+            furthest: 0.0,
             attachments: distance::LongRangeAttachments::default(),
             settling: Vec::new(),
             stats: TickStats::default(),
@@ -219,6 +222,7 @@ impl Solver {
                 }
             })
             .collect();
+        self.furthest = self.further.iter().copied().fold(0.0, f32::max);
         self.stats.ground_contacts = vec![0; ns];
         self.bound_to = (n, ns);
         Ok(())
@@ -424,8 +428,7 @@ impl Solver {
         let margin = self.config.collisions.margin * max_radius;
         // Only particles within reach of one that can be pushed can be a contact partner: the
         // rest (most of a robot, far from the objects) stay out of the hash.
-        let further = self.further.iter().copied().fold(0.0f32, f32::max);
-        let reach = 2.0 * max_radius + margin + further;
+        let reach = 2.0 * max_radius + margin + self.furthest;
         let pushed = (0..p.len()).filter(|&i| self.inv_mass[i] > 0.0);
         let (lo, hi) = pushed.fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), i| {
             (lo.min(p.position[i]), hi.max(p.position[i]))
@@ -439,7 +442,14 @@ impl Solver {
             &p.radius,
             &p.shape,
             &self.inv_mass,
-            (margin, &self.further),
+            (
+                margin,
+                if self.furthest > 0.0 {
+                    &self.further
+                } else {
+                    &[]
+                },
+            ),
             &mut self.neighbours,
         );
         self.stats.contact_candidates = self.neighbours.pair_count();
@@ -488,11 +498,15 @@ impl Solver {
                 &self.prev,
                 &self.inv_mass,
                 &p.radius,
-                collide::Solids {
-                    shape: &p.shape,
-                    primitives: &world.shapes.primitives,
-                    now: &world.shapes.pose,
-                    before: &self.substep_start,
+                match self.furthest > 0.0 {
+                    true => collide::Solids {
+                        shape: &p.shape,
+                        primitives: &world.shapes.primitives,
+                        now: &world.shapes.pose,
+                        before: &self.substep_start,
+                    },
+                    // Nothing met as a solid: no per-pair lookups in the hot loop.
+                    false => collide::Solids::NONE,
                 },
                 &self.neighbours,
                 c.static_friction,

@@ -116,8 +116,8 @@ impl SpatialHash {
 const CHUNK: usize = 512;
 
 /// For each particle that can be pushed (`inv_mass > 0`), list the particles of *other* shapes
-/// within `r_i + r_j + margin + further_j` (`further` empty: none further). Deterministic: lists are in particle-index order within each
-/// bucket, and chunks are concatenated in order.
+/// within `r_i + r_j + margin + further_j` (`further` empty: none further). Deterministic: lists
+/// are in particle-index order within each bucket, and chunks are concatenated in order.
 pub fn find_neighbours(
     hash: &SpatialHash,
     positions: &[Vec3],
