@@ -1320,10 +1320,10 @@ fn an_object_put_into_a_pusher_settles_out_of_it_without_being_thrown() {
     );
 }
 
-/// How far (m) sideways a 10 x 10 x 5 cm box drifts while a kinematic wall pushes it along +x at
-/// 0.1 m/s for 1.5 s and a sideways acceleration `a` acts on it, with `contact_friction` between
-/// wall and box; the wall met as its exact solid (`Shapes::primitives`) or as its particles.
-fn drift_along_a_pushing_wall(a: f32, contact_friction: f32, exact: bool) -> f32 {
+/// A 10 x 10 x 5 cm box resting on the table and a kinematic wall (one layer of particles, its
+/// surface a radius in front of them; met as a box solid if `exact`) standing a particle's
+/// diameter behind it along -x: the builder, the box, the wall and the wall's place.
+fn box_before_a_wall(exact: bool) -> (WorldBuilder, ShapeId, ShapeId, Vec3) {
     let half = Vec3::new(0.05, 0.05, 0.025);
     let mut b = WorldBuilder::new();
     let bx = add_resting_box(&mut b, half, Vec3::ZERO);
@@ -1343,6 +1343,14 @@ fn drift_along_a_pushing_wall(a: f32, contact_friction: f32, exact: bool) -> f32
             }],
         );
     }
+    (b, bx, pusher, start)
+}
+
+/// How far (m) sideways a 10 x 10 x 5 cm box drifts while a kinematic wall pushes it along +x at
+/// 0.1 m/s for 1.5 s and a sideways acceleration `a` acts on it, with `contact_friction` between
+/// wall and box; the wall met as its exact solid (`Shapes::primitives`) or as its particles.
+fn drift_along_a_pushing_wall(a: f32, contact_friction: f32, exact: bool) -> f32 {
+    let (mut b, bx, pusher, start) = box_before_a_wall(exact);
     let mut w = b.build();
     let mut config = PhysicsConfig::default();
     config.collisions.static_friction = contact_friction;
@@ -1394,5 +1402,87 @@ fn a_box_pushed_along_a_frictionless_wall_slides_sideways_as_coulomb_friction_ha
             "a {a}: drifted {exact} m along the wall, Coulomb {coulomb}"
         );
         assert!(held.abs() < 0.001, "a {a}: drifted {held} m with friction");
+    }
+}
+
+/// How far behind the wall's prescribed place a box ends up when pushed along +x at 0.1 m/s for
+/// 1.5 s by a wall that yields with stiffness `k` (N/m; None: rigid) against a resistance of the
+/// table's friction plus `m x back` (a force along -x), and how far from the push's speed the box
+/// strayed over the last half second (m/s).
+fn lag_behind_a_yielding_wall(k: Option<f32>, back: f32, exact: bool) -> (f32, f32) {
+    let (mut b, bx, pusher, start) = box_before_a_wall(exact);
+    if let Some(k) = k {
+        b.set_compliance(pusher, 1.0 / k);
+    }
+    let mut w = b.build();
+    let mut solver = Solver::new(PhysicsConfig::default(), &w).unwrap();
+    let dt = solver.config().dt;
+    let mut prescribed = start;
+    let mut speeds = vec![w.shape_centroid(bx).x];
+    for tick in 0..45 {
+        prescribed = start + Vec3::new(0.1 * (tick + 1) as f32 * dt, 0.0, 0.0);
+        w.shapes.target[pusher as usize] = Pose::from_translation(prescribed);
+        for i in w.shapes.range(bx) {
+            w.particles.external_force[i] = Vec3::new(-M * back, 0.0, 0.0);
+        }
+        solver.step(&mut w).unwrap();
+        speeds.push(w.shape_centroid(bx).x);
+    }
+    // The box's speed over the last half second, at the push's 0.1 m/s unless it slips and
+    // sticks.
+    let speed: Vec<f32> = speeds.windows(2).map(|x| (x[1] - x[0]) / dt).collect();
+    let steady = speed[speed.len() - 15..]
+        .iter()
+        .fold(0.0f32, |m, v| m.max((v - 0.1).abs()));
+    (prescribed.x - w.shape_centroid(bx).x, steady)
+}
+
+/// An arm under impedance control gives way where it pushes: a box pushed at constant speed by a
+/// wall of stiffness k against the table's friction (and a further force m a back) rests
+/// F / k = m (mu g + a) / k further behind it than behind a rigid wall, and moves with it
+/// steadily (a critically damped give; undamped, it slips and sticks). Met as its solids or as
+/// its particles alike.
+#[test]
+fn a_yielding_pusher_gives_way_by_the_force_it_pushes_with_over_its_stiffness() {
+    let mu = PhysicsConfig::default().ground.kinetic_friction;
+    let k = 1000.0;
+    let mass = {
+        let mut b = WorldBuilder::new();
+        let bx = add_resting_box(&mut b, Vec3::new(0.05, 0.05, 0.025), Vec3::ZERO);
+        b.build().shapes.mass[bx as usize]
+    };
+    for exact in [true, false] {
+        let (rigid, _) = lag_behind_a_yielding_wall(None, 0.0, exact);
+        for back in [0.0, mu * G] {
+            let expected = mass * (mu * G + back) / k;
+            let (lag, strayed) = lag_behind_a_yielding_wall(Some(k), back, exact);
+            eprintln!(
+                "exact {exact}, back {back:.2}: {:.2} mm further behind than a rigid wall, F/k {:.2} mm; speed within {strayed:.3} m/s of the push",
+                (lag - rigid) * 1e3,
+                expected * 1e3
+            );
+            assert!(
+                ((lag - rigid) - expected).abs() < 0.15 * expected,
+                "exact {exact}, back {back}: {} m further behind, F/k {expected} m",
+                lag - rigid
+            );
+            assert!(
+                strayed < 0.02,
+                "exact {exact}, back {back}: the box's speed strayed {strayed} m/s from the push's"
+            );
+        }
+        // A wall so soft that it would give way 20 mm still pushes the box along: deeper than 1.5
+        // particle radii its contact is rigid.
+        let soft = mass * mu * G / 0.02;
+        let (lag, _) = lag_behind_a_yielding_wall(Some(soft), 0.0, exact);
+        eprintln!(
+            "exact {exact}, {soft:.0} N/m: {:.2} mm further behind",
+            (lag - rigid) * 1e3
+        );
+        assert!(
+            lag - rigid < 2.0 * R,
+            "exact {exact}: a soft wall fell {} m behind",
+            lag - rigid
+        );
     }
 }

@@ -505,3 +505,35 @@ fn exact_contact_gives_every_primitive_link_its_urdf_solids_and_the_default_none
     let (_, world) = build(pegs::robot::RobotContact::Particles);
     assert!(world.shapes.primitives.iter().all(|p| p.is_empty()));
 }
+
+/// `robot.stiffness` makes every link give way as a spring of that stiffness (compliance 1/k), and
+/// a stiffness that is not a positive number is refused by name; left out, every link is rigid.
+#[test]
+fn a_stiffness_makes_every_link_yield_by_its_inverse_and_none_keeps_them_rigid() {
+    let model = bundled("panda_pusher.urdf");
+    let q = q_of(&model, &arm_motion(0.0));
+    let build = |stiffness| {
+        let config = RobotConfig {
+            stiffness,
+            ..RobotConfig::default()
+        };
+        let mut b = WorldBuilder::new();
+        let robot = RobotInWorld::add(&mut b, model.clone(), &q, &config).unwrap();
+        (robot, b.build())
+    };
+    let (robot, world) = build(Some(1000.0));
+    assert!(!robot.link_shapes.is_empty());
+    for &(_, s) in &robot.link_shapes {
+        assert!((world.shapes.compliance[s as usize] - 1e-3).abs() < 1e-9);
+    }
+    let (_, world) = build(None);
+    assert!(world.shapes.compliance.iter().all(|&c| c == 0.0));
+    for bad in [0.0, -5.0, f32::NAN] {
+        let config = RobotConfig {
+            stiffness: Some(bad),
+            ..RobotConfig::default()
+        };
+        let err = config.validate().unwrap_err().to_string();
+        assert!(err.contains("robot.stiffness"), "{err}");
+    }
+}

@@ -11,6 +11,7 @@
 use super::ground::friction;
 use super::sdf;
 use super::spatial_hash::NeighbourLists;
+use super::yielding::Yielding;
 use super::{TOUCH_SLACK, Touched};
 use crate::math::Pose;
 use crate::world::{Particles, Phase, Primitive, ShapeId};
@@ -65,10 +66,70 @@ impl Solids<'_> {
         let was = before.transform_point(now.inverse().transform_point(surface));
         Some((normal, depth, surface - was))
     }
+
+    /// The correction of a particle at `x` (at `prev` before the substep, radius `r`) by solid
+    /// shape `s`: out of it along its normal, and friction against its surface's motion.
+    fn correction(
+        &self,
+        s: ShapeId,
+        x: Vec3,
+        prev: Vec3,
+        r: f32,
+        mu_static: f32,
+        mu_kinetic: f32,
+    ) -> Option<Vec3> {
+        let (normal, depth, moved) = self.contact(s, x, r)?;
+        let rel = (x - prev) - moved;
+        let tangential = rel - rel.dot(normal) * normal;
+        let (slip, _) = friction(tangential, depth, 1.0, mu_static, mu_kinetic);
+        Some(depth * normal + slip)
+    }
+}
+
+/// The contact of particle `i` with particle `j`: the normal from `j` to `i`, how deep they
+/// overlap, and `i`'s displacement over the substep relative to `j`'s. None where they do not.
+#[inline]
+fn pair_contact(
+    pos: &[Vec3],
+    prev: &[Vec3],
+    radius: &[f32],
+    (i, j): (usize, usize),
+) -> Option<(Vec3, f32, Vec3)> {
+    let d = pos[i] - pos[j];
+    let dist = d.length();
+    let depth = radius[i] + radius[j] - dist;
+    if depth <= 0.0 {
+        return None;
+    }
+    let normal = if dist > 1e-9 { d / dist } else { Vec3::Z };
+    Some((normal, depth, (pos[i] - prev[i]) - (pos[j] - prev[j])))
+}
+
+/// The correction of pushable particle `i` by particle `j` of another shape, in the share of
+/// their inverse masses: apart along their centres, and friction against their relative motion.
+/// None where they do not overlap.
+#[inline]
+#[allow(clippy::too_many_arguments)]
+fn pair_correction(
+    pos: &[Vec3],
+    prev: &[Vec3],
+    inv_mass: &[f32],
+    radius: &[f32],
+    (i, j): (usize, usize),
+    mu_static: f32,
+    mu_kinetic: f32,
+) -> Option<Vec3> {
+    let (normal, depth, rel) = pair_contact(pos, prev, radius, (i, j))?;
+    let wi = inv_mass[i];
+    let share = wi / (wi + inv_mass[j]);
+    let tangential = rel - rel.dot(normal) * normal;
+    let (slip, _) = friction(tangential, depth, 1.0, mu_static, mu_kinetic);
+    Some(share * (depth * normal + slip))
 }
 
 /// Sum of the contact corrections of each pushable particle into `delta`, and their number into
-/// `count`. Positions are read, never written: apply with `apply_averaged`. A particle touching
+/// `count`; a contact with a shape that gives way (`yielding`) applies its share and marks the
+/// particle in `soft`. Positions are read, never written: apply with `apply_averaged`. A particle touching
 /// an immovable partner (kinematic or static) is marked in `pinned`.
 #[allow(clippy::too_many_arguments)]
 pub fn collision_corrections(
@@ -77,19 +138,21 @@ pub fn collision_corrections(
     inv_mass: &[f32],
     radius: &[f32],
     solids: Solids,
+    yielding: Yielding,
     lists: &NeighbourLists,
     mu_static: f32,
     mu_kinetic: f32,
     delta: &mut [Vec3],
     count: &mut [u32],
-    pinned: &mut [bool],
+    (pinned, soft): (&mut [bool], &mut [bool]),
 ) {
     delta
         .par_chunks_mut(CHUNK)
         .zip(count.par_chunks_mut(CHUNK))
         .zip(pinned.par_chunks_mut(CHUNK))
+        .zip(soft.par_chunks_mut(CHUNK))
         .enumerate()
-        .for_each(|(c, ((dch, cch), sch))| {
+        .for_each(|(c, (((dch, cch), sch), softs))| {
             for k in 0..dch.len() {
                 let i = c * CHUNK + k;
                 let mut sum = Vec3::ZERO;
@@ -97,6 +160,7 @@ pub fn collision_corrections(
                 let wi = inv_mass[i];
                 let mut met = [ShapeId::MAX; SOLIDS_MET];
                 let mut n_met = 0;
+                let mut met_soft = false;
                 if wi > 0.0 {
                     for &j in lists.of(i) {
                         let j = j as usize;
@@ -107,36 +171,58 @@ pub fn collision_corrections(
                             }
                             continue;
                         }
-                        let d = pos[i] - pos[j];
-                        let dist = d.length();
-                        let depth = radius[i] + radius[j] - dist;
-                        if depth <= 0.0 {
+                        let Some(c) = (match yielding.of(j) {
+                            Some(s) => pair_contact(pos, prev, radius, (i, j)).map(
+                                |(normal, depth, rel)| {
+                                    met_soft = true;
+                                    yielding.correction(
+                                        (i, s, radius[i]),
+                                        (normal, depth, rel),
+                                        (mu_static, mu_kinetic),
+                                    )
+                                },
+                            ),
+                            None => pair_correction(
+                                pos,
+                                prev,
+                                inv_mass,
+                                radius,
+                                (i, j),
+                                mu_static,
+                                mu_kinetic,
+                            ),
+                        }) else {
                             continue;
-                        }
-                        let normal = if dist > 1e-9 { d / dist } else { Vec3::Z };
-                        let share = wi / (wi + inv_mass[j]);
-                        let rel = (pos[i] - prev[i]) - (pos[j] - prev[j]);
-                        let tangential = rel - rel.dot(normal) * normal;
-                        let (slip, _) = friction(tangential, depth, 1.0, mu_static, mu_kinetic);
-                        sum += share * (depth * normal + slip);
+                        };
+                        sum += c;
                         n_contacts += 1;
                         sch[k] |= inv_mass[j] <= 0.0;
                     }
                     for &s in &met[..n_met] {
-                        let Some((normal, depth, moved)) = solids.contact(s, pos[i], radius[i])
-                        else {
+                        let Some(c) = (match yielding.gives_way(s) {
+                            true => solids.contact(s, pos[i], radius[i]).map(
+                                |(normal, depth, moved)| {
+                                    met_soft = true;
+                                    yielding.correction(
+                                        (i, s, radius[i]),
+                                        (normal, depth, (pos[i] - prev[i]) - moved),
+                                        (mu_static, mu_kinetic),
+                                    )
+                                },
+                            ),
+                            false => solids
+                                .correction(s, pos[i], prev[i], radius[i], mu_static, mu_kinetic),
+                        }) else {
                             continue;
                         };
-                        let rel = (pos[i] - prev[i]) - moved;
-                        let tangential = rel - rel.dot(normal) * normal;
-                        let (slip, _) = friction(tangential, depth, 1.0, mu_static, mu_kinetic);
-                        sum += depth * normal + slip;
+                        sum += c;
                         n_contacts += 1;
                         sch[k] = true;
                     }
                 }
                 dch[k] = sum;
                 cch[k] = n_contacts;
+                softs[k] = met_soft;
             }
         });
 }
@@ -201,12 +287,13 @@ mod tests {
             &inv_mass,
             &radius,
             Solids::NONE,
+            Yielding::NONE,
             &lists,
             0.0,
             0.0,
             &mut delta,
             &mut count,
-            &mut [false; 2],
+            (&mut [false; 2], &mut [false; 2]),
         );
         let mut after = pos.clone();
         apply_averaged(&mut after, &delta, &count, 1.0);
@@ -236,12 +323,13 @@ mod tests {
             &[1.0, 0.0],
             &[0.01, 0.01],
             Solids::NONE,
+            Yielding::NONE,
             &lists,
             0.0,
             0.0,
             &mut delta,
             &mut count,
-            &mut [false; 2],
+            (&mut [false; 2], &mut [false; 2]),
         );
         assert!(
             (delta[0] - Vec3::new(0.0, 0.0, -0.01)).length() < 1e-7,

@@ -17,6 +17,7 @@ mod ground;
 mod sdf;
 mod shape_matching;
 mod spatial_hash;
+mod yielding;
 
 pub use config::{CollisionConfig, GroundConfig, GroundPins, GroundSupport, PhysicsConfig};
 pub use effects::Effect;
@@ -117,6 +118,13 @@ pub struct Solver {
     further: Vec<f32>,
     /// The largest of `further` (0: no shape is met as its solids).
     furthest: f32,
+    /// Per particle, the mass a contact on it moves (`Yielding::body_mass`); empty where no shape
+    /// gives way.
+    body_mass: Vec<f32>,
+    /// Per particle, in contact with a yielding shape in the current sweep; per shape, the share of
+    /// its weight those carried at the last one (`yielding::contact_share`).
+    soft: Vec<bool>,
+    held_share: Vec<f32>,
     attachments: distance::LongRangeAttachments,
     /// Shapes whose speed the coming tick caps at `SETTLING_SPEED` (`settle`).
     settling: Vec<ShapeId>,
@@ -152,6 +160,9 @@ impl Solver {
             neighbours: NeighbourLists::default(),
             tick_start: Vec::new(),
             substep_start: Vec::new(),
+            body_mass: Vec::new(),
+            soft: Vec::new(),
+            held_share: Vec::new(),
             further: Vec::new(),
             furthest: 0.0,
             attachments: distance::LongRangeAttachments::default(),
@@ -223,6 +234,21 @@ impl Solver {
             })
             .collect();
         self.furthest = self.further.iter().copied().fold(0.0, f32::max);
+        self.body_mass = match world.shapes.compliance.iter().any(|&c| c > 0.0) {
+            true => (0..n)
+                .map(|i| {
+                    let s = world.particles.shape[i] as usize;
+                    match world.shapes.kind[s] {
+                        ShapeKind::Rigid => self.shape_mass[s],
+                        _ if self.inv_mass[i] > 0.0 => 1.0 / self.inv_mass[i],
+                        _ => 0.0,
+                    }
+                })
+                .collect(),
+            false => Vec::new(),
+        };
+        self.soft = vec![false; n];
+        self.held_share = vec![1.0; ns];
         self.stats.ground_contacts = vec![0; ns];
         self.bound_to = (n, ns);
         Ok(())
@@ -508,12 +534,23 @@ impl Solver {
                     // Nothing met as a solid: no per-pair lookups in the hot loop.
                     false => collide::Solids::NONE,
                 },
+                match self.body_mass.is_empty() {
+                    true => yielding::Yielding::NONE,
+                    false => yielding::Yielding {
+                        shape: &p.shape,
+                        compliance: &world.shapes.compliance,
+                        body_mass: &self.body_mass,
+                        held_share: &self.held_share,
+                        h2: (cfg.dt / cfg.substeps as f32).powi(2),
+                        iterations: cfg.iterations,
+                    },
+                },
                 &self.neighbours,
                 c.static_friction,
                 c.kinetic_friction,
                 &mut self.delta,
                 &mut self.count,
-                &mut self.pinned,
+                (&mut self.pinned, &mut self.soft),
             );
             collide::apply_averaged(&mut p.position, &self.delta, &self.count, cfg.relaxation);
         }
@@ -530,6 +567,16 @@ impl Solver {
             }
         }
         self.pin_shapes_held_by_the_ground(world);
+        if !self.body_mass.is_empty() {
+            yielding::contact_share(
+                (0..world.shapes.len()).map(|s| world.shapes.range(s as ShapeId)),
+                &self.inv_mass,
+                &self.pinned,
+                &self.soft,
+                self.config.pin_weight,
+                &mut self.held_share,
+            );
+        }
         self.match_rigid_shapes(world);
     }
 

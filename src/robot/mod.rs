@@ -41,6 +41,11 @@ pub struct RobotConfig {
     /// with), or as the URDF's exact solids where a link's geometry is all boxes, cylinders,
     /// capsules and spheres (meshes stay particles).
     pub contact: RobotContact,
+    /// How stiffly the links hold their place where they push objects, N/m: each link gives way
+    /// by the force it pushes with over this, as an arm under Cartesian
+    /// impedance control does (frankx's Cartesian impedance motion holds 2000 N/m by default;
+    /// `physics::yielding`). None: rigid, where the joint angles put it.
+    pub stiffness: Option<f32>,
     /// Colour for every link; overrides URDF materials.
     pub colour: Option<Vec3>,
     /// Colour of links without a URDF material.
@@ -76,6 +81,7 @@ impl Default for RobotConfig {
             particle_radius: 0.006,
             spacing_per_radius: 2.0,
             contact: RobotContact::Particles,
+            stiffness: None,
             colour: None,
             default_colour: Vec3::splat(0.9),
             joint_prefix_received: String::new(),
@@ -132,6 +138,11 @@ impl RobotConfig {
                 "robot.spacing_per_radius must be positive, got {}",
                 self.spacing_per_radius
             );
+        }
+        if let Some(k) = self.stiffness
+            && !(k.is_finite() && k > 0.0)
+        {
+            bail!("robot.stiffness must be positive (N/m) or left out (rigid), got {k}");
         }
         if !self.base_position.is_finite()
             || self.base_orientation.iter().any(|v| !v.is_finite())
@@ -223,6 +234,9 @@ impl RobotInWorld {
                 if let Some(exact) = exact {
                     builder.set_primitives(shape, exact);
                 }
+            }
+            if let Some(k) = config.stiffness {
+                builder.set_compliance(shape, 1.0 / k);
             }
             // Surface samples are `spacing` apart: Gaussians of half that spread close the gaps, so
             // the robot renders solid and occludes what is behind it.

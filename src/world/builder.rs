@@ -81,6 +81,11 @@ impl WorldBuilder {
         self.world.shapes.primitives[shape as usize] = primitives;
     }
 
+    /// How far kinematic `shape` yields per newton it pushes with (`Shapes::compliance`, m/N).
+    pub fn set_compliance(&mut self, shape: ShapeId, compliance: f32) {
+        self.world.shapes.compliance[shape as usize] = compliance;
+    }
+
     fn push_gaussian(&mut self, particle: usize, radius: f32, colour: Vec3) {
         self.world.gaussians.push(
             particle as u32,

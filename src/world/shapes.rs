@@ -43,6 +43,9 @@ pub struct Shapes {
     /// is known (a URDF's primitives); contacts then meet it instead of the particles. Empty: the
     /// particles.
     pub primitives: Vec<Vec<Primitive>>,
+    /// Kinematic shapes: how far the shape gives way per newton it pushes objects with, m/N (a
+    /// robot under impedance control; `physics::yielding`). Zero: rigid.
+    pub compliance: Vec<f32>,
 }
 
 /// A solid of known geometry at `origin` in its shape's body frame.
@@ -103,6 +106,7 @@ impl Shapes {
         self.center_of_mass.push(Vec3::ZERO);
         self.inertia.push(Mat3::ZERO);
         self.primitives.push(Vec::new());
+        self.compliance.push(0.0);
         (self.name.len() - 1) as ShapeId
     }
 

@@ -54,17 +54,33 @@ def sections_of(settings: list[str]) -> dict[str, list[str]]:
 
 def with_settings(config: str, sections: dict[str, list[str]]) -> str:
     """`config` (a generated config.yaml: `pegs:` then `ros__parameters:`) with each of `sections`
-    added as a section of its own; a section the config has already is refused rather than merged
-    by hand."""
-    for section in sections:
-        if f"\n    {section}:" in config:
-            sys.exit(f"--set {section}.*: the recording's config has a {section} section already; "
-                     "edit its config.yaml instead")
+    added: into the section of that name where the config has it as a block (`    robot:` and its
+    keys indented under it), else as a section of its own. A key the config's section has already,
+    or a section written inline (`    robot: {...}`), is refused rather than merged by hand."""
     head = "  ros__parameters:\n"
     if head not in config:
         sys.exit("config.yaml has no ros__parameters")
-    added = "".join(f"    {section}: {{{', '.join(keys)}}}\n" for section, keys in sections.items())
-    return config.replace(head, head + added, 1)
+    lines = config.splitlines(keepends=True)
+    for section, keys in sections.items():
+        block = f"    {section}:\n"
+        if block in lines:
+            start = lines.index(block) + 1
+            end = start
+            while end < len(lines) and lines[end].startswith("      "):
+                end += 1
+            have = {line.strip().split(":", 1)[0] for line in lines[start:end]}
+            for key in keys:
+                if key.split(":", 1)[0] in have:
+                    sys.exit(f"--set {section}.{key.split(':', 1)[0]}: the recording's config sets it "
+                             "already; edit its config.yaml instead")
+            lines[start:start] = [f"      {key}\n" for key in keys]
+        elif any(line.startswith(f"    {section}:") for line in lines):
+            sys.exit(f"--set {section}.*: the recording's config writes its {section} section inline; "
+                     "edit its config.yaml instead")
+        else:
+            at = lines.index(head) + 1
+            lines[at:at] = [f"    {section}: {{{', '.join(keys)}}}\n"]
+    return "".join(lines)
 
 
 def tagged(name: str, settings: list[str]) -> str:
