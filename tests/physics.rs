@@ -1350,7 +1350,7 @@ fn box_before_a_wall(exact: bool) -> (WorldBuilder, ShapeId, ShapeId, Vec3) {
 /// 0.1 m/s for 1.5 s and a sideways acceleration `a` acts on it, with `contact_friction` between
 /// wall and box; the wall met as its exact solid (`Shapes::primitives`) or as its particles.
 fn drift_along_a_pushing_wall(a: f32, contact_friction: f32, exact: bool) -> f32 {
-    let (mut b, bx, pusher, start) = box_before_a_wall(exact);
+    let (b, bx, pusher, start) = box_before_a_wall(exact);
     let mut w = b.build();
     let mut config = PhysicsConfig::default();
     config.collisions.static_friction = contact_friction;
