@@ -471,21 +471,26 @@ fn robot_gaussians_render_and_occlude_objects_behind_them() {
     );
 }
 
+/// The bundled pusher alone in a world, at the start of `arm_motion`, built with `config`.
+fn pusher_world(config: RobotConfig) -> (RobotInWorld, pegs::world::World) {
+    let model = bundled("panda_pusher.urdf");
+    let q = q_of(&model, &arm_motion(0.0));
+    let mut b = WorldBuilder::new();
+    let robot = RobotInWorld::add(&mut b, model, &q, &config).unwrap();
+    (robot, b.build())
+}
+
 /// With `robot.contact: exact` every link whose collision geometry is all primitives (the bundled
 /// pusher: boxes and cylinders) is met as those solids, placed where the URDF has them; by
 /// default none is (the links' particles).
 #[test]
 fn exact_contact_gives_every_primitive_link_its_urdf_solids_and_the_default_none() {
     let model = bundled("panda_pusher.urdf");
-    let q = q_of(&model, &arm_motion(0.0));
     let build = |contact| {
-        let config = RobotConfig {
+        pusher_world(RobotConfig {
             contact,
             ..RobotConfig::default()
-        };
-        let mut b = WorldBuilder::new();
-        let robot = RobotInWorld::add(&mut b, model.clone(), &q, &config).unwrap();
-        (robot, b.build())
+        })
     };
     let (robot, world) = build(pegs::robot::RobotContact::Exact);
     for &(li, s) in &robot.link_shapes {
@@ -510,16 +515,11 @@ fn exact_contact_gives_every_primitive_link_its_urdf_solids_and_the_default_none
 /// a stiffness that is not a positive number is refused by name; left out, every link is rigid.
 #[test]
 fn a_stiffness_makes_every_link_yield_by_its_inverse_and_none_keeps_them_rigid() {
-    let model = bundled("panda_pusher.urdf");
-    let q = q_of(&model, &arm_motion(0.0));
     let build = |stiffness| {
-        let config = RobotConfig {
+        pusher_world(RobotConfig {
             stiffness,
             ..RobotConfig::default()
-        };
-        let mut b = WorldBuilder::new();
-        let robot = RobotInWorld::add(&mut b, model.clone(), &q, &config).unwrap();
-        (robot, b.build())
+        })
     };
     let (robot, world) = build(Some(1000.0));
     assert!(!robot.link_shapes.is_empty());
