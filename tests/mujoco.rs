@@ -73,11 +73,10 @@ fn replay(folder: &Path, extra: &[&str]) -> serde_json::Value {
     json(&out.join("metrics.json"))
 }
 
-/// How far the object's true centre moved over the recording, m.
-fn truth_travel(folder: &Path, object: &str) -> f64 {
+/// The object's true centre at each recorded frame, m.
+fn truth_centres(folder: &Path, object: &str) -> Vec<[f64; 3]> {
     let text = std::fs::read_to_string(folder.join("ground_truth.csv")).unwrap();
-    let points: Vec<[f64; 3]> = text
-        .lines()
+    text.lines()
         .skip(1)
         .filter(|l| l.split(',').nth(1) == Some(object))
         .map(|l| {
@@ -89,7 +88,12 @@ fn truth_travel(folder: &Path, object: &str) -> f64 {
                 .collect();
             [f[0], f[1], f[2]]
         })
-        .collect();
+        .collect()
+}
+
+/// How far the object's true centre moved over the recording, m.
+fn truth_travel(folder: &Path, object: &str) -> f64 {
+    let points = truth_centres(folder, object);
     let (a, b) = (points[0], points[points.len() - 1]);
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
@@ -122,6 +126,43 @@ fn an_object_at_rest_in_another_engines_recording_stays_tracked() {
         "every camera's depth used: {warnings:?}"
     );
     assert!(mean < 2.0 && last < 3.0, "mean {mean} mm, final {last} mm");
+}
+
+/// An object dropped onto the table (MuJoCo holds it 5-13 cm up at the first frame and lets
+/// go, the robot parked): built where the cameras see it, not put down on the table, it falls
+/// with pegs's gravity and is followed down and at rest. When initialisation put every object on
+/// the table, the drops of seeds 3700-3703 were tracked 95-132 mm off on average, off by the
+/// drop's height from the first tick to the last.
+#[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
+fn a_dropped_object_is_built_in_the_air_where_it_is_seen_and_followed_down() {
+    let folder = record_as("drop", "restitution", 41, None, &[]);
+    let m = replay(&folder, &[]);
+    let heights: Vec<f64> = truth_centres(&folder, "obj1")
+        .iter()
+        .map(|p| p[2])
+        .collect();
+    let fall = heights[0] - heights[heights.len() - 1];
+    let above = m["init"]["objects"]["obj1"]["in_the_air_m"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("not built in the air: {}", m["init"]));
+    let (mean, p95) = (
+        error_mm(&m, "obj1", "mean_mm"),
+        error_mm(&m, "obj1", "p95_mm"),
+    );
+    println!(
+        "dropped {:.1} cm, built {:.1} cm above the table; mean {mean:.2} mm, p95 {p95:.2} mm, \
+         events {}",
+        fall * 100.0,
+        above * 100.0,
+        m["track_events"]
+    );
+    assert!(fall > 0.05, "the object fell {fall} m");
+    assert!(
+        (above - fall).abs() < 0.01,
+        "built {above} m up, fell {fall} m"
+    );
+    assert!(mean < 5.0 && p95 < 10.0, "mean {mean} mm, p95 {p95} mm");
 }
 
 /// An object the robot pushes in another engine's recording: the robot moved by the recorded

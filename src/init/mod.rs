@@ -50,6 +50,10 @@ pub struct ObjectInit {
     pub alignment: Option<align::Alignment>,
     pub colour_fit: Option<table::ColourFit>,
     pub silhouette_fit: Option<align::SilhouetteFit>,
+    /// How far (m) its lowest point was above the ground at the first frame, when more than
+    /// `IN_THE_AIR`: built there, to fall when tracking starts.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub in_the_air_m: Option<f32>,
 }
 
 /// What initialisation did and how long it took.
@@ -65,21 +69,36 @@ pub struct InitReport {
     pub seconds: f64,
 }
 
-/// Move `shape` along the ground normal so that its lowest particle just touches the ground
-/// `normal . p = height` (up out of it, or down onto it when it floats); returns the move in m.
-pub fn settle_on_ground(
-    world: &mut crate::world::World,
-    shape: crate::world::ShapeId,
+/// An object whose lowest point is more than this (m) above the ground at the first frame is in
+/// the air there (dropped, thrown, held up): it is built where it is seen and left there to fall,
+/// not put down on the table. Resting objects are built within a few millimetres of the ground
+/// (depth noise, the lattice's steps), well under it; MuJoCo's drops start 5-13 cm up.
+pub const IN_THE_AIR: f32 = 0.02;
+
+/// How far (m) `shape`'s lowest particle is above the ground `normal . p = height` (negative: in
+/// it), or None for a shape without particles.
+pub fn height_above_ground(
+    world: &World,
+    shape: ShapeId,
     normal: Vec3,
     height: f32,
-) -> f32 {
+) -> Option<f32> {
     let n = normal.normalize_or(Vec3::Z);
-    let gap = world
-        .shapes
-        .range(shape)
+    let gap = (world.shapes.range(shape))
         .map(|i| n.dot(world.particles.position[i]) - height - world.particles.radius[i])
         .fold(f32::INFINITY, f32::min);
-    if !gap.is_finite() {
+    gap.is_finite().then_some(gap)
+}
+
+/// Move `shape` along the ground normal so that its lowest particle just touches the ground
+/// `normal . p = height`: up out of it, or down onto it when it floats by less than
+/// `IN_THE_AIR`. Returns the move in m (0 for a shape in the air, which stays where it is).
+pub fn settle_on_ground(world: &mut World, shape: ShapeId, normal: Vec3, height: f32) -> f32 {
+    let Some(gap) = height_above_ground(world, shape, normal, height) else {
+        return 0.0;
+    };
+    let n = normal.normalize_or(Vec3::Z);
+    if gap > IN_THE_AIR {
         return 0.0;
     }
     world.move_shape(shape, Pose::from_translation(-gap * n));
@@ -154,10 +173,15 @@ pub fn build_scene(
         &mut report,
     )?;
     // Objects start resting on the ground, not in it: the physics would turn a penetration into
-    // a jump (a 2 mm overlap resolved in one substep is a 1 m/s kick).
+    // a jump (a 2 mm overlap resolved in one substep is a 1 m/s kick). One in the air stays there.
     if ground.enabled {
         for s in world.shapes.dynamic_ids().collect::<Vec<_>>() {
             settle_on_ground(&mut world, s, ground.normal, ground.height);
+            let above = height_above_ground(&world, s, ground.normal, ground.height);
+            if let Some(above) = above.filter(|h| *h > IN_THE_AIR) {
+                let name = &world.shapes.name[s as usize];
+                report.objects.entry(name.clone()).or_default().in_the_air_m = Some(above);
+            }
         }
     }
     if let Some(table) = &scene.table {
@@ -631,4 +655,35 @@ fn fit_silhouettes(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 2 x 2 x 1 lattice of 5 mm particles whose lowest point is `gap` above the ground z = 0.
+    fn slab_at(gap: f32) -> (World, ShapeId) {
+        let mut builder = WorldBuilder::new();
+        let points =
+            [(0.0, 0.0), (0.01, 0.0), (0.0, 0.01), (0.01, 0.01)].map(|(x, y)| Vec3::new(x, y, 0.0));
+        let pose = Pose::from_translation(Vec3::new(0.5, 0.0, 0.005 + gap));
+        let s = builder.add_rigid("slab", &points, 0.005, 0.01, pose, Vec3::ONE);
+        (builder.build(), s)
+    }
+
+    #[test]
+    fn an_object_resting_is_put_on_the_ground_and_one_in_the_air_is_left_where_it_is() {
+        for (gap, moved) in [
+            (-0.003, 0.003),
+            (0.004, -0.004),
+            (0.019, -0.019),
+            (0.06, 0.0),
+        ] {
+            let (mut world, s) = slab_at(gap);
+            let got = settle_on_ground(&mut world, s, Vec3::Z, 0.0);
+            let after = height_above_ground(&world, s, Vec3::Z, 0.0).unwrap();
+            assert!((got - moved).abs() < 1e-6, "{gap}: moved {got}");
+            assert!((after - (gap + moved)).abs() < 1e-6, "{gap}: {after} above");
+        }
+    }
 }

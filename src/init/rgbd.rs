@@ -1,6 +1,7 @@
 //! Objects from RGB-D and instance masks (the paper's dual Gaussian-particle initialisation, for
 //! rigid objects resting on the table): the ground plane by RANSAC on the depth points; per object,
-//! its masked depth points give an oriented bounding box standing on the ground; a lattice of
+//! its masked depth points give an oriented bounding box standing on the ground (one in the air at
+//! the first frame: from its lowest seen point up); a lattice of
 //! particles fills the box; carving removes the cells a camera sees through (depth) or sees no
 //! object at (mask), and `without_phantoms` those no camera saw the object over or under (hidden
 //! by the robot or by the object itself); one Gaussian per particle gets its colour from the
@@ -358,10 +359,25 @@ pub fn object_from_rgbd(
         );
     }
     let (points, bulk) = within_bulk(points, ground, radius);
-    let (pose, size) = standing_box(&points, ground, bulk.1, surface_inset);
     let step = 2.0 * radius;
-    let lattice = box_cells(size, radius);
-    let carved = carve(&lattice, &pose, frames, label, step);
+    let carved_box = |bottom: f32| {
+        let (pose, size) = standing_box(&points, ground, (bottom, bulk.1), surface_inset);
+        let lattice = box_cells(size, radius);
+        let carved = carve(&lattice, &pose, frames, label, step);
+        (pose, size, lattice.len(), carved)
+    };
+    // Built standing on the ground first. Where the cameras see the ground under it (carving
+    // leaves no cell within `IN_THE_AIR` of the ground) and its lowest seen point is higher, it
+    // is in the air: built again from that point up. (Seen only from above, a tall object
+    // resting on the table keeps every cell under its top, so it is never taken for one in the
+    // air; one in the air keeps cells only in the shadow all cameras have under it.)
+    let standing = carved_box(0.0);
+    let on_ground = grounded_share(&standing.3, standing.1, radius, super::IN_THE_AIR);
+    let in_the_air = bulk.0 > super::IN_THE_AIR && on_ground < 0.5;
+    let (pose, size, lattice_cells, carved) = match in_the_air {
+        true => carved_box(bulk.0),
+        false => standing,
+    };
     let kept = without_phantoms(&carved, &pose, &points, frames, label, (radius, 0.5 * step));
     if kept.is_empty() {
         bail!("object '{name}': every cell of its bounding box was carved away");
@@ -422,8 +438,8 @@ pub fn object_from_rgbd(
     let report = RgbdObjectReport {
         points: points.len(),
         box_size: size.to_array(),
-        lattice_cells: lattice.len(),
-        carved: lattice.len() - carved.len(),
+        lattice_cells,
+        carved: lattice_cells - carved.len(),
         phantom_cells: carved.len() - kept.len(),
         particles: kept.len(),
         gaussians: dense.len(),
@@ -549,13 +565,14 @@ fn within_bulk(
     (points, bulk)
 }
 
-/// The oriented box standing on the ground that holds `points`: the in-plane turn with the
-/// smallest rectangle, up to `top` above the ground, grown by `surface_inset`. Its pose (body x,
-/// y along the rectangle, z along the ground normal, origin at the centre) and size.
+/// The oriented box that holds `points`: the in-plane turn with the smallest rectangle, from
+/// `bottom` to `top` above the ground (bottom 0: standing on it), grown by `surface_inset` (but
+/// not into the ground). Its pose (body x, y along the rectangle, z along the ground normal,
+/// origin at the centre) and size.
 fn standing_box(
     points: &[Vec3],
     ground: (Vec3, f32),
-    top: f32,
+    (bottom, top): (f32, f32),
     surface_inset: f32,
 ) -> (Pose, Vec3) {
     let (normal, height) = (ground.0.normalize(), ground.1);
@@ -590,20 +607,34 @@ fn standing_box(
         lo - Vec2::splat(surface_inset),
         hi + Vec2::splat(surface_inset),
     );
-    let top = top + surface_inset;
-    let size = Vec3::new(hi.x - lo.x, hi.y - lo.y, top);
+    let (bottom, top) = ((bottom - surface_inset).max(0.0), top + surface_inset);
+    let size = Vec3::new(hi.x - lo.x, hi.y - lo.y, top - bottom);
     let (s, c) = angle.sin_cos();
     let ax = e1 * c + e2 * s;
     let ay = normal.cross(ax);
     let mid = (lo + hi) / 2.0;
     let centre_flat = ax * mid.x + ay * mid.y;
-    let centre = centre_flat - normal * normal.dot(centre_flat) + normal * (height + top / 2.0);
+    let centre =
+        centre_flat - normal * normal.dot(centre_flat) + normal * (height + (bottom + top) / 2.0);
     let rotation = Quat::from_mat3(&glam::Mat3::from_cols(ax, ay, normal)).normalize();
     (Pose::new(centre, rotation), size)
 }
 
+/// Of the columns (along the body's z) that hold a cell of `cells` (a lattice from `box_cells` of
+/// a box of `size`), the share that hold one within `reach` of the box's bottom.
+fn grounded_share(cells: &[Vec3], size: Vec3, radius: f32, reach: f32) -> f32 {
+    use std::collections::HashSet;
+    let column = |b: &Vec3| ((b.x / radius).round() as i32, (b.y / radius).round() as i32);
+    let all: HashSet<_> = cells.iter().map(column).collect();
+    let low: HashSet<_> = (cells.iter())
+        .filter(|b| b.z + size.z / 2.0 - radius <= reach)
+        .map(column)
+        .collect();
+    low.len() as f32 / all.len().max(1) as f32
+}
+
 /// A lattice of touching particles (spacing 2 x radius) in the body frame: as many as fit `size`,
-/// centred in the plane and stacked from the ground up.
+/// centred in the plane and stacked from the box's bottom up.
 fn box_cells(size: Vec3, radius: f32) -> Vec<Vec3> {
     let cells = |extent: f32| ((extent / (2.0 * radius)).round() as usize).max(1);
     let (nx, ny, nz) = (cells(size.x), cells(size.y), cells(size.z));
@@ -1154,33 +1185,7 @@ mod tests {
         let pose = Pose::new(Vec3::new(0.5, 0.1, 0.015), Quat::from_rotation_z(0.4));
         let eye = pose.transform_point(Vec3::new(0.0, -0.4, 0.4));
         let camera = Camera::look_at(200, 200, 300.0, eye, pose.translation);
-        let to_world = camera.world_to_camera.inverse();
-        let (lo, hi) = (
-            Vec3::new(-0.02, -0.015, -0.015),
-            Vec3::new(0.02, 0.015, 0.015),
-        );
-        let (mut depth, mut labels, mut points) = (Vec::new(), Vec::new(), Vec::new());
-        for k in 0..(camera.width * camera.height) as usize {
-            let (u, v) = ((k as u32 % 200) as f32 + 0.5, (k as u32 / 200) as f32 + 0.5);
-            // Optical depth along the ray (its optical z step is 1): the box's slabs, else the table.
-            let ray = to_world.rotation
-                * Vec3::new((u - camera.cx) / 300.0, (v - camera.cy) / 300.0, 1.0);
-            let (o, d) = (
-                pose.inverse().transform_point(eye),
-                pose.rotation.inverse() * ray,
-            );
-            let (t0, t1) = ((lo - o) / d, (hi - o) / d);
-            let (near, far) = (t0.min(t1).max_element(), t0.max(t1).min_element());
-            let (measured, label) = match near <= far && near > 0.0 {
-                true => {
-                    points.push(eye + ray * near);
-                    (near, 1)
-                }
-                false => (-eye.z / ray.z, 0),
-            };
-            depth.push(measured);
-            labels.push(label);
-        }
+        let (depth, labels, points) = traced_box(&camera, &pose, Vec3::new(0.02, 0.015, 0.015));
         let colour = vec![Vec3::ONE; depth.len()];
         let lattice = box_lattice_and_rows(&[0.0215]);
         let frame = RgbdFrame {
@@ -1196,6 +1201,90 @@ mod tests {
             beside.len() == 4 && beside.iter().all(|b| b.z > 0.005),
             "{beside:?}"
         );
+    }
+
+    /// Depth (optical, the table z = 0 behind), labels (1 on the box) and the box's seen surface
+    /// points of a box of half extents `half` at `pose`, traced per pixel of `camera`.
+    fn traced_box(camera: &Camera, pose: &Pose, half: Vec3) -> (Vec<f32>, Vec<u8>, Vec<Vec3>) {
+        let to_world = camera.world_to_camera.inverse();
+        let eye = to_world.translation;
+        let (mut depth, mut labels, mut points) = (Vec::new(), Vec::new(), Vec::new());
+        for k in 0..(camera.width * camera.height) as usize {
+            let (u, v) = (
+                (k as u32 % camera.width) as f32 + 0.5,
+                (k as u32 / camera.width) as f32 + 0.5,
+            );
+            // The ray's optical z step is 1, so its parameter is the depth.
+            let ray = to_world.rotation
+                * Vec3::new(
+                    (u - camera.cx) / camera.fx,
+                    (v - camera.cy) / camera.fy,
+                    1.0,
+                );
+            let (o, d) = (
+                pose.inverse().transform_point(eye),
+                pose.rotation.inverse() * ray,
+            );
+            let (t0, t1) = ((-half - o) / d, (half - o) / d);
+            let (near, far) = (t0.min(t1).max_element(), t0.max(t1).min_element());
+            let (measured, label) = match near <= far && near > 0.0 {
+                true => {
+                    points.push(eye + ray * near);
+                    (near, 1)
+                }
+                false => (-eye.z / ray.z, 0),
+            };
+            depth.push(measured);
+            labels.push(label);
+        }
+        (depth, labels, points)
+    }
+
+    /// `object_from_rgbd` of a box of half extents `half` at `pose` seen by `cameras`; its
+    /// particles in the world and their radius.
+    fn built_box(cameras: &[Camera], pose: &Pose, half: Vec3) -> Vec<Vec3> {
+        let traced: Vec<_> = cameras.iter().map(|c| traced_box(c, pose, half)).collect();
+        let colour = vec![Vec3::ONE; (cameras[0].width * cameras[0].height) as usize];
+        let frames: Vec<RgbdFrame> = (cameras.iter().zip(&traced))
+            .map(|(camera, (depth, labels, _))| RgbdFrame {
+                camera: *camera,
+                colour: &colour,
+                depth,
+                labels,
+            })
+            .collect();
+        let render = RenderSettings::default();
+        let (model, _) =
+            object_from_rgbd("box", 1, &frames, (Vec3::Z, 0.0), 0.005, 0.0, &render).unwrap();
+        (model.particles.iter())
+            .map(|(b, _)| model.pose.transform_point(*b))
+            .collect()
+    }
+
+    /// A 4 x 3 x 3 cm box held with its bottom 6.5 cm over the table, seen by three cameras at 45
+    /// degrees around it: built there, about its own size (36 cells of 1 cm), not down to the
+    /// table through the shadow no camera sees under it. A box 10 cm tall resting on the table,
+    /// seen only from straight above (its top, nothing of its sides), stands on the table.
+    #[test]
+    fn an_object_in_the_air_is_built_where_it_is_seen_and_one_seen_only_from_above_stands() {
+        let pose = Pose::new(Vec3::new(0.5, 0.1, 0.08), Quat::from_rotation_z(0.4));
+        let half = Vec3::new(0.02, 0.015, 0.015);
+        let cameras: Vec<Camera> = (0..3)
+            .map(|k| {
+                let (s, c) = (k as f32 * 2.1).sin_cos();
+                let eye = pose.translation + Vec3::new(0.35 * c, 0.35 * s, 0.35);
+                Camera::look_at(200, 200, 300.0, eye, pose.translation)
+            })
+            .collect();
+        let particles = built_box(&cameras, &pose, half);
+        let lowest = (particles.iter().map(|p| p.z - 0.005)).fold(f32::INFINITY, f32::min);
+        assert!((lowest - 0.065).abs() < 0.008, "lowest {lowest} m");
+        assert!((30..=48).contains(&particles.len()), "{}", particles.len());
+        let tall = Pose::new(Vec3::new(0.5, 0.1, 0.05), Quat::from_rotation_z(0.4));
+        let above = Camera::look_at(200, 200, 300.0, Vec3::new(0.5, 0.1, 0.6), tall.translation);
+        let particles = built_box(&[above], &tall, Vec3::new(0.02, 0.015, 0.05));
+        let lowest = (particles.iter().map(|p| p.z - 0.005)).fold(f32::INFINITY, f32::min);
+        assert!(lowest.abs() < 0.005, "lowest {lowest} m");
     }
 
     /// A column of particles (radius 5 mm) standing at `x`, turned by `yaw`.
