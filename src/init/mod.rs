@@ -69,6 +69,29 @@ pub struct InitReport {
     pub seconds: f64,
 }
 
+impl InitReport {
+    /// What a user should read of it, a line per fact: objects built in the air, objects aligned
+    /// to their masks.
+    pub fn lines(&self) -> Vec<String> {
+        let mut lines = Vec::new();
+        for (name, o) in &self.objects {
+            if let Some(h) = o.in_the_air_m {
+                lines.push(format!(
+                    "{name}: {:.1} cm above the ground at the first frame: built where it is seen, it falls when tracking starts",
+                    h * 100.0
+                ));
+            }
+            if let Some(a) = &o.alignment {
+                lines.push(format!(
+                    "{name}: aligned to its masks, moved {:.1} mm, turned {:.1} deg, silhouette IoU {:.2} -> {:.2} ({:.1} s)",
+                    a.moved_mm, a.turned_deg, a.iou_before, a.iou_after, a.seconds
+                ));
+            }
+        }
+        lines
+    }
+}
+
 /// An object whose lowest point is more than this (m) above the ground at the first frame is in
 /// the air there (dropped, thrown, held up): it is built where it is seen and left there to fall,
 /// not put down on the table. Resting objects are built within a few millimetres of the ground
@@ -669,6 +692,25 @@ mod tests {
         let pose = Pose::from_translation(Vec3::new(0.5, 0.0, 0.005 + gap));
         let s = builder.add_rigid("slab", &points, 0.005, 0.01, pose, Vec3::ONE);
         (builder.build(), s)
+    }
+
+    #[test]
+    fn the_report_says_which_objects_were_built_in_the_air_and_nothing_of_resting_ones() {
+        let mut report = InitReport::default();
+        report
+            .objects
+            .insert("resting".into(), ObjectInit::default());
+        let dropped = ObjectInit {
+            in_the_air_m: Some(0.1304),
+            ..Default::default()
+        };
+        report.objects.insert("dropped".into(), dropped);
+        let lines = report.lines();
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        assert!(
+            lines[0].starts_with("dropped: 13.0 cm above the ground"),
+            "{lines:?}"
+        );
     }
 
     #[test]

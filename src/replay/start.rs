@@ -107,19 +107,8 @@ pub fn scene(
         ..config.init()
     };
     let (scene, report) = init::build_scene(&settings, &frames, &first_joints, progress)?;
-    for (name, o) in &report.objects {
-        if let Some(h) = o.in_the_air_m {
-            eprintln!(
-                "{name}: {:.1} cm above the ground at the first frame: built where it is seen, it falls when tracking starts",
-                h * 100.0
-            );
-        }
-        if let Some(a) = &o.alignment {
-            eprintln!(
-                "{name}: aligned to its masks, moved {:.1} mm, turned {:.1} deg, silhouette IoU {:.2} -> {:.2} ({:.1} s)",
-                a.moved_mm, a.turned_deg, a.iou_before, a.iou_after, a.seconds
-            );
-        }
+    for line in report.lines() {
+        eprintln!("{line}");
     }
     let ground = report.ground;
     metrics.init = Some(report);

@@ -375,7 +375,10 @@ fn build_scene(config: &Config, cameras: &[(String, Camera)], s: &Shared) -> Res
         robot: &robot,
         ..config.init()
     };
-    let (scene, _report) = crate::init::build_scene(&settings, &frames, &joints, false)?;
+    let (scene, report) = crate::init::build_scene(&settings, &frames, &joints, false)?;
+    for line in report.lines() {
+        log(&line);
+    }
     Ok(scene)
 }
 
