@@ -1,13 +1,12 @@
 //! Objects from RGB-D and instance masks (the paper's dual Gaussian-particle initialisation, for
 //! rigid objects resting on the table): the ground plane by RANSAC on the depth points; per object,
 //! its masked depth points give an oriented bounding box standing on the ground (one in the air at
-//! the first frame: from its lowest seen point up); a lattice of
-//! particles fills the box; carving removes the cells a camera sees through (depth) or sees no
-//! object at (mask), and `without_phantoms` those no camera saw the object over or under (hidden
-//! by the robot or by the object itself); one Gaussian per particle gets its colour from the
-//! images by Adam; Gaussians are bonded to their particles. Objects built side by side are parted
-//! where their particles overlap (`part_overlapping`: the collision shape only, never the
-//! Gaussians).
+//! the first frame: from its lowest seen point up); a lattice of particles fills the box; carving
+//! removes the cells a camera sees through (depth) or sees no object at (mask), and
+//! `without_phantoms` those no camera saw the object over or under (hidden by the robot or by the
+//! object itself); one Gaussian per particle gets its colour from the images by Adam; Gaussians
+//! are bonded to their particles. Objects built side by side are parted where their particles
+//! overlap (`part_overlapping`: the collision shape only, never the Gaussians).
 
 use super::table::{ColourFit, FitFrame, fit_colours};
 use crate::math::Pose;
@@ -366,9 +365,9 @@ pub fn object_from_rgbd(
         let carved = carve(&lattice, &pose, frames, label, step);
         (pose, size, lattice.len(), carved)
     };
-    // Built standing on the ground first. Where the cameras see the ground under it (carving
-    // leaves no cell within `IN_THE_AIR` of the ground) and its lowest seen point is higher, it
-    // is in the air: built again from that point up. (Seen only from above, a tall object
+    // Built standing on the ground first. Where the cameras see the ground under it (of the
+    // columns of cells carving leaves, under half keep one within `IN_THE_AIR` of the ground) and
+    // its lowest seen point is higher, it is in the air: built again from that point up. (Seen only from above, a tall object
     // resting on the table keeps every cell under its top, so it is never taken for one in the
     // air; one in the air keeps cells only in the shadow all cameras have under it.)
     let standing = carved_box(0.0);
@@ -1240,8 +1239,8 @@ mod tests {
         (depth, labels, points)
     }
 
-    /// `object_from_rgbd` of a box of half extents `half` at `pose` seen by `cameras`; its
-    /// particles in the world and their radius.
+    /// `object_from_rgbd` (particles of radius 5 mm) of a box of half extents `half` at `pose`
+    /// seen by `cameras`; its particles' centres in the world.
     fn built_box(cameras: &[Camera], pose: &Pose, half: Vec3) -> Vec<Vec3> {
         let traced: Vec<_> = cameras.iter().map(|c| traced_box(c, pose, half)).collect();
         let colour = vec![Vec3::ONE; (cameras[0].width * cameras[0].height) as usize];
