@@ -158,11 +158,36 @@ fn a_dropped_object_is_built_in_the_air_where_it_is_seen_and_followed_down() {
         m["track_events"]
     );
     assert!(fall > 0.05, "the object fell {fall} m");
+    // Its bottom from the lowest of its mask's edge: within a pixel (here 2-3 mm) of the truth.
+    // From the lowest interior depth point it was built 3 mm high.
     assert!(
-        (above - fall).abs() < 0.01,
+        (above - fall).abs() < 0.0025,
         "built {above} m up, fell {fall} m"
     );
     assert!(mean < 5.0 && p95 < 10.0, "mean {mean} mm, p95 {p95} mm");
+}
+
+/// The generator's truth is physics: MuJoCo 4.0 lost every contact of restitution_3904's
+/// cylinder after 1.5 s at rest (found only once it touches the plane), and it fell 11 mm into the
+/// table and was thrown 7 cm up. Its contacts found a tenth of a millimetre early
+/// (`simulate.CYLINDER_WATCH`), it stays where it landed, within that tenth.
+#[test]
+#[ignore = "slow: full tier (tests/run_all.sh)"]
+fn a_cylinder_at_rest_in_the_generators_recording_stays_on_the_table() {
+    let folder = record_as("cylinder", "restitution", 3904, None, &[]);
+    let truth = json(&folder.join("truth.json"));
+    assert_eq!(truth["objects"][0]["shape"], "cylinder", "{truth}");
+    // 30 frames a second: from 0.5 s, after the bounces.
+    let heights: Vec<f64> = (truth_centres(&folder, "obj1").iter().skip(15))
+        .map(|p| p[2])
+        .collect();
+    let rest = heights[heights.len() - 1];
+    let (low, high) =
+        (heights.iter()).fold((f64::MAX, f64::MIN), |(lo, hi), z| (lo.min(*z), hi.max(*z)));
+    assert!(
+        rest - low < 2e-4 && high - rest < 2e-4,
+        "rests at {rest} m, between {low} and {high} after 0.5 s"
+    );
 }
 
 /// An object the robot pushes in another engine's recording: the robot moved by the recorded

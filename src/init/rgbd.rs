@@ -1,12 +1,12 @@
 //! Objects from RGB-D and instance masks (the paper's dual Gaussian-particle initialisation, for
 //! rigid objects resting on the table): the ground plane by RANSAC on the depth points; per object,
 //! its masked depth points give an oriented bounding box standing on the ground (one in the air at
-//! the first frame: from its lowest seen point up); a lattice of particles fills the box; carving
-//! removes the cells a camera sees through (depth) or sees no object at (mask), and
+//! the first frame: from the lowest of its mask's edge up); a lattice of particles fills the box;
+//! carving removes the cells a camera sees through (depth) or sees no object at (mask), and
 //! `without_phantoms` those no camera saw the object over or under (hidden by the robot or by the
-//! object itself); one Gaussian per particle gets its colour from the images by Adam; Gaussians
-//! are bonded to their particles. Objects built side by side are parted where their particles
-//! overlap (`part_overlapping`: the collision shape only, never the Gaussians).
+//! object itself); one Gaussian per particle gets its colour from the images by Adam; Gaussians are
+//! bonded to their particles. Objects built side by side are parted where their particles overlap
+//! (`part_overlapping`: the collision shape only, never the Gaussians).
 
 use super::table::{ColourFit, FitFrame, fit_colours};
 use crate::math::Pose;
@@ -36,7 +36,11 @@ impl RgbdFrame<'_> {
 
     /// World point seen at pixel `k`, if it has a depth.
     pub fn point(&self, k: usize) -> Option<Vec3> {
-        let d = self.depth[k];
+        self.point_at_depth(k, self.depth[k])
+    }
+
+    /// World point on pixel `k`'s ray at depth `d` (metres along the optical axis), if `d` is one.
+    fn point_at_depth(&self, k: usize, d: f32) -> Option<Vec3> {
         if !(d.is_finite() && d > 0.0) {
             return None;
         }
@@ -367,14 +371,15 @@ pub fn object_from_rgbd(
     };
     // Built standing on the ground first. Where the cameras see the ground under it (of the
     // columns of cells carving leaves, under half keep one within `IN_THE_AIR` of the ground) and
-    // its lowest seen point is higher, it is in the air: built again from that point up. (Seen only from above, a tall object
-    // resting on the table keeps every cell under its top, so it is never taken for one in the
-    // air; one in the air keeps cells only in the shadow all cameras have under it.)
+    // its lowest seen point is higher, it is in the air: built again from the lowest of its
+    // mask's edge up (`lowest_edge`). (Seen only from above, a tall object resting on the table
+    // keeps every cell under its top, so it is never taken for one in the air; one in the air
+    // keeps cells only in the shadow all cameras have under it.)
     let standing = carved_box(0.0);
     let on_ground = grounded_share(&standing.3, standing.1, radius, super::IN_THE_AIR);
     let in_the_air = bulk.0 > super::IN_THE_AIR && on_ground < 0.5;
     let (pose, size, lattice_cells, carved) = match in_the_air {
-        true => carved_box(bulk.0),
+        true => carved_box(lowest_edge(frames, label, ground, bulk.0, step)),
         false => standing,
     };
     let kept = without_phantoms(&carved, &pose, &points, frames, label, (radius, 0.5 * step));
@@ -544,6 +549,47 @@ fn masked_points(frames: &[RgbdFrame], label: u8) -> Vec<Vec3> {
     points
 }
 
+/// The mask's edge where the object's depth continues up to it: every pixel of the mask beside
+/// one outside it, on its ray at the depth its interior neighbours see (its own depth mixes the
+/// object's with what lies behind). The interior points (`masked_points`) stop a pixel short of
+/// these; its footprint, depth over focal length, is millimetres.
+fn mask_edge_points(frames: &[RgbdFrame], label: u8) -> Vec<Vec3> {
+    let mut points: Vec<Vec3> = Vec::new();
+    for f in frames {
+        let (w, h) = (f.camera.width as usize, f.camera.height as usize);
+        let interior = |k: usize| {
+            let (x, y) = (k % w, k / w);
+            (1..w - 1).contains(&x)
+                && (1..h - 1).contains(&y)
+                && [k, k - 1, k + 1, k - w, k + w]
+                    .iter()
+                    .all(|&j| f.labels[j] == label)
+        };
+        for y in 1..h.saturating_sub(1) {
+            for x in 1..w.saturating_sub(1) {
+                let k = y * w + x;
+                if f.labels[k] != label || interior(k) {
+                    continue;
+                }
+                let inside: Vec<f32> = [k - 1, k + 1, k - w, k + w]
+                    .into_iter()
+                    .filter(|&j| interior(j))
+                    .map(|j| f.depth[j])
+                    .filter(|d| d.is_finite() && *d > 0.0)
+                    .collect();
+                if inside.is_empty() {
+                    continue;
+                }
+                let depth = inside.iter().sum::<f32>() / inside.len() as f32;
+                if let Some(p) = f.point_at_depth(k, depth) {
+                    points.push(p);
+                }
+            }
+        }
+    }
+    points
+}
+
 fn quantile(v: &[f32], q: f32) -> f32 {
     v[((v.len() - 1) as f32 * q).round() as usize]
 }
@@ -562,6 +608,29 @@ fn within_bulk(
     let (h_lo, h_hi) = (bulk.0 - 2.0 * radius, bulk.1 + 2.0 * radius);
     points.retain(|p| (h_lo..=h_hi).contains(&(normal.dot(*p) - height)));
     (points, bulk)
+}
+
+/// How high above the ground an object in the air begins: the lowest of its mask's edge
+/// (`mask_edge_points`, the same share of the lowest left out as for the bulk), which lies a
+/// pixel's footprint below `lowest_seen`, the bulk's lowest interior point; never more than
+/// `reach` (a particle's width) below it, so stray labels at the edge cannot stretch the box.
+fn lowest_edge(
+    frames: &[RgbdFrame],
+    label: u8,
+    (normal, height): (Vec3, f32),
+    lowest_seen: f32,
+    reach: f32,
+) -> f32 {
+    let normal = normal.normalize();
+    let mut heights: Vec<f32> = (mask_edge_points(frames, label).iter())
+        .map(|p| normal.dot(*p) - height)
+        .filter(|h| *h >= lowest_seen - reach)
+        .collect();
+    if heights.is_empty() {
+        return lowest_seen;
+    }
+    heights.sort_by(f32::total_cmp);
+    quantile(&heights, 0.005).min(lowest_seen)
 }
 
 /// The oriented box that holds `points`: the in-plane turn with the smallest rectangle, from
@@ -1239,9 +1308,26 @@ mod tests {
         (depth, labels, points)
     }
 
-    /// `object_from_rgbd` (particles of radius 5 mm) of a box of half extents `half` at `pose`
-    /// seen by `cameras`; its particles' centres in the world.
-    fn built_box(cameras: &[Camera], pose: &Pose, half: Vec3) -> Vec<Vec3> {
+    /// Three 200 x 200 cameras (fx 300 px) looking down at 45 degrees on `target` from around
+    /// it, `reach` (m) out and up.
+    fn three_around(target: Vec3, reach: f32) -> Vec<Camera> {
+        (0..3)
+            .map(|k| {
+                let (s, c) = (k as f32 * 2.1).sin_cos();
+                let eye = target + Vec3::new(reach * c, reach * s, reach);
+                Camera::look_at(200, 200, 300.0, eye, target)
+            })
+            .collect()
+    }
+
+    /// `with_frames` given the frames `cameras` see of a box of half extents `half` at `pose`
+    /// (`traced_box`; white).
+    fn seeing_box<R>(
+        cameras: &[Camera],
+        pose: &Pose,
+        half: Vec3,
+        with_frames: impl FnOnce(&[RgbdFrame]) -> R,
+    ) -> R {
         let traced: Vec<_> = cameras.iter().map(|c| traced_box(c, pose, half)).collect();
         let colour = vec![Vec3::ONE; (cameras[0].width * cameras[0].height) as usize];
         let frames: Vec<RgbdFrame> = (cameras.iter().zip(&traced))
@@ -1252,9 +1338,16 @@ mod tests {
                 labels,
             })
             .collect();
+        with_frames(&frames)
+    }
+
+    /// `object_from_rgbd` (particles of radius 5 mm) of a box of half extents `half` at `pose`
+    /// seen by `cameras`; its particles' centres in the world.
+    fn built_box(cameras: &[Camera], pose: &Pose, half: Vec3) -> Vec<Vec3> {
         let render = RenderSettings::default();
-        let (model, _) =
-            object_from_rgbd("box", 1, &frames, (Vec3::Z, 0.0), 0.005, 0.0, &render).unwrap();
+        let (model, _) = seeing_box(cameras, pose, half, |frames| {
+            object_from_rgbd("box", 1, frames, (Vec3::Z, 0.0), 0.005, 0.0, &render).unwrap()
+        });
         (model.particles.iter())
             .map(|(b, _)| model.pose.transform_point(*b))
             .collect()
@@ -1268,13 +1361,7 @@ mod tests {
     fn an_object_in_the_air_is_built_where_it_is_seen_and_one_seen_only_from_above_stands() {
         let pose = Pose::new(Vec3::new(0.5, 0.1, 0.08), Quat::from_rotation_z(0.4));
         let half = Vec3::new(0.02, 0.015, 0.015);
-        let cameras: Vec<Camera> = (0..3)
-            .map(|k| {
-                let (s, c) = (k as f32 * 2.1).sin_cos();
-                let eye = pose.translation + Vec3::new(0.35 * c, 0.35 * s, 0.35);
-                Camera::look_at(200, 200, 300.0, eye, pose.translation)
-            })
-            .collect();
+        let cameras = three_around(pose.translation, 0.35);
         let particles = built_box(&cameras, &pose, half);
         let lowest = (particles.iter().map(|p| p.z - 0.005)).fold(f32::INFINITY, f32::min);
         assert!((lowest - 0.065).abs() < 0.008, "lowest {lowest} m");
@@ -1284,6 +1371,34 @@ mod tests {
         let particles = built_box(&[above], &tall, Vec3::new(0.02, 0.015, 0.05));
         let lowest = (particles.iter().map(|p| p.z - 0.005)).fold(f32::INFINITY, f32::min);
         assert!(lowest.abs() < 0.005, "lowest {lowest} m");
+    }
+
+    /// A box held 6.5 cm over the table, seen by three cameras looking down at 45 degrees from
+    /// 0.6 m (fx 300 px: a pixel is 2 mm across there, 2.8 mm along its upright faces). Its lowest
+    /// interior depth point (`masked_points` keeps pixels whose four neighbours are the object's
+    /// too) lies over a pixel above its bottom; the lowest of its mask's edge, on the edge
+    /// pixel's ray at the interior's depth, within one pixel of it and never below.
+    #[test]
+    fn the_bottom_of_an_object_in_the_air_is_where_its_mask_ends_not_a_pixel_inside() {
+        let bottom = 0.065;
+        let pose = Pose::new(
+            Vec3::new(0.5, 0.1, bottom + 0.015),
+            Quat::from_rotation_z(0.4),
+        );
+        let cameras = three_around(pose.translation, 0.42);
+        let ground = (Vec3::Z, 0.0);
+        let half = Vec3::new(0.02, 0.015, 0.015);
+        let (bulk, edge) = seeing_box(&cameras, &pose, half, |frames| {
+            let (_, bulk) = within_bulk(masked_points(frames, 1), ground, 0.005);
+            (bulk, lowest_edge(frames, 1, ground, bulk.0, 0.01))
+        });
+        let pixel_along_face = 0.6 / 300.0 * 2f32.sqrt();
+        assert!(bulk.0 - bottom > pixel_along_face, "interior {}", bulk.0);
+        assert!(
+            (0.0..pixel_along_face).contains(&(edge - bottom)),
+            "edge {edge}, interior {}",
+            bulk.0
+        );
     }
 
     /// A column of particles (radius 5 mm) standing at `x`, turned by `yaw`.
