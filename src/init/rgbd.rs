@@ -537,16 +537,27 @@ fn masked_points(frames: &[RgbdFrame], label: u8) -> Vec<Vec3> {
         for y in 1..h.saturating_sub(1) {
             for x in 1..w.saturating_sub(1) {
                 let k = y * w + x;
-                let interior = [k, k - 1, k + 1, k - w, k + w]
-                    .iter()
-                    .all(|&j| f.labels[j] == label);
-                if interior && let Some(p) = f.point(k) {
+                if interior(f, label, k)
+                    && let Some(p) = f.point(k)
+                {
                     points.push(p);
                 }
             }
         }
     }
     points
+}
+
+/// Whether pixel `k` of `f` and its four neighbours are all labelled `label` (never a pixel on the
+/// image's border).
+fn interior(f: &RgbdFrame, label: u8, k: usize) -> bool {
+    let (w, h) = (f.camera.width as usize, f.camera.height as usize);
+    let (x, y) = (k % w.max(1), k / w.max(1));
+    (1..w.saturating_sub(1)).contains(&x)
+        && (1..h.saturating_sub(1)).contains(&y)
+        && [k, k - 1, k + 1, k - w, k + w]
+            .iter()
+            .all(|&j| f.labels[j] == label)
 }
 
 /// The mask's edge where the object's depth continues up to it: every pixel of the mask beside
@@ -557,23 +568,15 @@ fn mask_edge_points(frames: &[RgbdFrame], label: u8) -> Vec<Vec3> {
     let mut points: Vec<Vec3> = Vec::new();
     for f in frames {
         let (w, h) = (f.camera.width as usize, f.camera.height as usize);
-        let interior = |k: usize| {
-            let (x, y) = (k % w, k / w);
-            (1..w - 1).contains(&x)
-                && (1..h - 1).contains(&y)
-                && [k, k - 1, k + 1, k - w, k + w]
-                    .iter()
-                    .all(|&j| f.labels[j] == label)
-        };
         for y in 1..h.saturating_sub(1) {
             for x in 1..w.saturating_sub(1) {
                 let k = y * w + x;
-                if f.labels[k] != label || interior(k) {
+                if f.labels[k] != label || interior(f, label, k) {
                     continue;
                 }
                 let inside: Vec<f32> = [k - 1, k + 1, k - w, k + w]
                     .into_iter()
-                    .filter(|&j| interior(j))
+                    .filter(|&j| interior(f, label, j))
                     .map(|j| f.depth[j])
                     .filter(|d| d.is_finite() && *d > 0.0)
                     .collect();
