@@ -1320,6 +1320,42 @@ fn an_object_put_into_a_pusher_settles_out_of_it_without_being_thrown() {
     );
 }
 
+/// Settling caps what an overlap adds, not what an object had: a box sliding at 0.8 m/s, settled
+/// at its own speed (`settle_below`, as a nudge while the model has it in contact is), slides on
+/// as it would unsettled, while settled at `SETTLING_SPEED` it is braked to it.
+#[test]
+fn an_object_settled_at_its_own_speed_slides_on_as_it_would_unsettled() {
+    let speed = 0.8;
+    let slide = |settle: Option<f32>| -> f32 {
+        let half = Vec3::new(0.05, 0.05, 0.025);
+        let mut b = WorldBuilder::new();
+        let bx = add_resting_box(&mut b, half, Vec3::ZERO);
+        let mut w = b.build();
+        for i in w.shapes.range(bx) {
+            w.particles.velocity[i] = Vec3::new(speed, 0.0, 0.0);
+        }
+        let mut solver = Solver::new(PhysicsConfig::default(), &w).unwrap();
+        if let Some(cap) = settle {
+            solver.settle_below(bx, cap);
+        }
+        solver.step(&mut w).unwrap();
+        w.shape_velocity(bx).length()
+    };
+    let (free, own, capped) = (slide(None), slide(Some(speed)), slide(Some(0.0)));
+    assert!(
+        free > pegs::physics::SETTLING_SPEED + 0.1,
+        "{free} m/s after a tick"
+    );
+    assert!(
+        (own - free).abs() < 1e-4,
+        "settled at its speed {own}, free {free} m/s"
+    );
+    assert!(
+        capped <= pegs::physics::SETTLING_SPEED + 1e-3,
+        "settled at the floor {capped} m/s"
+    );
+}
+
 /// A 10 x 10 x 5 cm box resting on the table and a kinematic wall (one layer of particles, its
 /// surface a radius in front of them; met as a box solid if `exact`) standing a particle's
 /// diameter behind it along -x: the builder, the box, the wall and the wall's place.

@@ -158,6 +158,11 @@ pub struct CorrectConfig {
     /// The nudge takes only the offset beyond this (m, at the furthest particle): a found pose
     /// within it is left to the pull, whose force the model's friction filters.
     pub pose_nudge_beyond: f32,
+    /// An object the model has touching the robot or another object is nudged only beyond this
+    /// (m, at the furthest particle), and settled for the next tick (`Solver::settle_below`, no
+    /// faster than it moves): what the nudge puts into its pusher is pushed out in position, not
+    /// thrown. 0: such an object is not nudged.
+    pub pose_nudge_contact_beyond: f32,
     /// Images older than this (s) at a tick are not used. An image shows the objects where they
     /// were when it was taken, and the tick compares it with the world at the tick's end: at
     /// 0.2 m/s every 10 ms of age pulls the objects 2 mm back. About two ticks by default (a
@@ -398,6 +403,7 @@ impl Default for CorrectConfig {
             pose_nudge: 0.5,
             pose_nudge_velocity: 0.5,
             pose_nudge_beyond: 0.006,
+            pose_nudge_contact_beyond: 0.01,
             max_image_age: 0.07,
             use_roi: true,
             roi_margin_px: 12.0,
@@ -436,6 +442,7 @@ impl CorrectConfig {
             ("pose_nudge", self.pose_nudge),
             ("pose_nudge_velocity", self.pose_nudge_velocity),
             ("pose_nudge_beyond", self.pose_nudge_beyond),
+            ("pose_nudge_contact_beyond", self.pose_nudge_contact_beyond),
             ("roi_margin_px", self.roi_margin_px),
             ("occluder_threshold", self.occluder_threshold),
             ("friction_compensation", self.friction_compensation),
@@ -516,6 +523,14 @@ pub struct CorrectStats {
     /// Per shape: the silhouette agreement in the tick's first camera before any update
     /// (`agreement`), None where it shows too little of the object.
     pub agreement: Vec<Option<f32>>,
+    /// Per shape: how far (m, its particles' mean move) the local search found the object
+    /// convincingly off the model's pose (`pull::convincing`) before this tick's nudge; None where
+    /// the search did not run or found nothing convincing.
+    pub found_offset: Vec<Option<f32>>,
+    /// Objects nudged while the model had them touching the robot or another object
+    /// (`CorrectConfig::pose_nudge_contact_beyond`), with the speed (m/s) of each one's fastest
+    /// particle after the nudge: the physics is to settle them (`Solver::settle_below`).
+    pub nudged_in_contact: Vec<(ShapeId, f32)>,
     /// Milliseconds per stage: `setup` (windows, crops, occluder weights), `forward`,
     /// `backward`, `gather` (gradients to the free Gaussians), `adam`, `forces`, and the
     /// renderer's own stages (`render.project`, ...) where it measures them.
@@ -897,23 +912,21 @@ impl Corrector {
                 .collect();
             let poses = self.local_poses(world, views, c.pose_search_radius, &wanted)?;
             lap(&mut stats, "pose_search", &mut clock);
+            stats.found_offset = pull::found_offsets(world, &poses);
             let shares: Vec<f32> = self
                 .agreement_avg
                 .iter()
                 .map(|a| pull_share(*a, &c))
                 .collect();
-            // Where the model's own contact pushes an object, it moves as the contact says: a
-            // nudge there puts it into its pusher.
-            let free: Vec<_> = poses
-                .iter()
-                .enumerate()
-                .map(|(s, p)| match self.in_contact.get(s) {
-                    Some(true) => None,
-                    _ => p.filter(pull::convincing),
-                })
-                .collect();
-            for n in nudge::nudge_towards_found(world, &free, &shares, &c, dt) {
+            // Where the model's own contact pushes an object, it moves as the contact says: it is
+            // nudged only far off, and settled (`nudge`).
+            let convincing: Vec<_> = poses.iter().map(|p| p.filter(pull::convincing)).collect();
+            let contact = &self.in_contact;
+            for n in nudge::nudge_towards_found(world, &convincing, &shares, contact, &c, dt) {
                 stats.force[n.shape as usize] += n.force;
+                if let Some(speed) = n.settle_below {
+                    stats.nudged_in_contact.push((n.shape, speed));
+                }
             }
             let mut pulls = pose_pulls(world, &poses, c.pose_dead_zone);
             for (d, shape) in pulls.iter_mut().zip(&world.particles.shape) {

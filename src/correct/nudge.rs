@@ -5,7 +5,9 @@
 //! like a filter's, where the pose pull (`pull`) is a force: a force the model's friction or a
 //! missing spring holds back moves the object only once the pull has grown past them, so an
 //! object pushed by something the model lacks lagged behind by ticks and then overshot; a nudge
-//! is not held back.
+//! is not held back. An object the model has touching the robot or another object is nudged
+//! only beyond `pose_nudge_contact_beyond`, and asks the physics to settle it: what the nudge
+//! puts into its pusher is to be pushed out in position, not thrown.
 //!
 //! This module owns moving tracked objects towards found poses and what such a move is worth
 //! as a force (for the residuals); it never searches (`relocate`) and never decides whether a
@@ -24,17 +26,23 @@ pub struct Nudge {
     pub shape: ShapeId,
     pub motion: Pose,
     pub force: Vec3,
+    /// For an object nudged in contact: the speed (m/s) of its fastest particle after the nudge,
+    /// which the physics settles it below for its next tick (`Solver::settle_below`).
+    pub settle_below: Option<f32>,
 }
 
 /// Move each rigid object the search found convincingly off (`found`, already filtered: `None`
 /// for an object not to be nudged; `share` per shape from `pull_share`) by `pose_nudge x share`
 /// of the way to the found pose beyond `pose_nudge_beyond` (at its furthest particle, as
 /// `pose_pulls` measures its dead zone), and add `pose_nudge_velocity` times the move's rate to
-/// its particles' velocities. Returns the nudges made (none within `pose_nudge_beyond`).
+/// its particles' velocities. An object `in_contact` (per shape: the model's last predict step
+/// had it touch the robot or another object) is nudged only beyond `pose_nudge_contact_beyond`
+/// (never at 0) and is to be settled. Returns the nudges made.
 pub fn nudge_towards_found(
     world: &mut World,
     found: &[Option<relocate::Found>],
     share: &[f32],
+    in_contact: &[bool],
     c: &CorrectConfig,
     dt: f32,
 ) -> Vec<Nudge> {
@@ -58,10 +66,16 @@ pub fn nudge_towards_found(
                 (found.pose.transform_point(rest) - here.transform_point(rest)).length()
             })
             .fold(0.0, f32::max);
-        if furthest <= c.pose_nudge_beyond {
+        let touching = in_contact.get(s).copied().unwrap_or(false);
+        let beyond = match touching {
+            true if c.pose_nudge_contact_beyond <= 0.0 => continue,
+            true => c.pose_nudge_contact_beyond,
+            false => c.pose_nudge_beyond,
+        };
+        if furthest <= beyond {
             continue;
         }
-        let keep = 1.0 - c.pose_nudge_beyond / furthest;
+        let keep = 1.0 - beyond / furthest;
         let step = (c.pose_nudge * share.get(s).copied().unwrap_or(0.0) * keep).clamp(0.0, 1.0);
         if step <= 0.0 {
             continue;
@@ -79,10 +93,14 @@ pub fn nudge_towards_found(
             mass += world.particles.mass(i);
         }
         world.shapes.pose[s] = to;
+        let fastest = (world.shapes.range(s as ShapeId))
+            .map(|i| world.particles.velocity[i].length())
+            .fold(0.0, f32::max);
         nudges.push(Nudge {
             shape: s as ShapeId,
             motion,
             force: mass * moved / (dt * dt),
+            settle_below: touching.then_some(fastest),
         });
     }
     nudges
@@ -108,6 +126,18 @@ mod tests {
         b.build()
     }
 
+    /// `nudge_towards_found` for the one object of `world`, found at `target`.
+    fn nudge_one(
+        world: &mut World,
+        target: Pose,
+        share: f32,
+        touching: bool,
+        c: &CorrectConfig,
+    ) -> Vec<Nudge> {
+        let found = [Some(found_at(target))];
+        nudge_towards_found(world, &found, &[share], &[touching], c, 1.0 / 30.0)
+    }
+
     fn found_at(pose: Pose) -> relocate::Found {
         relocate::Found {
             pose,
@@ -130,9 +160,8 @@ mod tests {
             pose_nudge_velocity: 0.0,
             ..CorrectConfig::default()
         };
-        let dt = 1.0 / 30.0;
         let before: Vec<Vec3> = world.particles.position.clone();
-        let nudges = nudge_towards_found(&mut world, &[Some(found_at(target))], &[1.0], &c, dt);
+        let nudges = nudge_one(&mut world, target, 1.0, false, &c);
         assert_eq!(nudges.len(), 1);
         // Rigid: every pair of particles keeps its distance.
         let p = &world.particles.position;
@@ -164,7 +193,47 @@ mod tests {
         // Within `pose_nudge_beyond`: nothing moves.
         let mut still = one_box();
         let near = Pose::from_translation(Vec3::new(0.002, 0.0, 0.025));
-        let none = nudge_towards_found(&mut still, &[Some(found_at(near))], &[1.0], &c, dt);
+        let none = nudge_one(&mut still, near, 1.0, false, &c);
+        assert!(none.is_empty());
+    }
+
+    /// An object the model has in contact is nudged only beyond `pose_nudge_contact_beyond`, and
+    /// asks to be settled no slower than it moves; never at 0.
+    #[test]
+    fn an_object_in_contact_is_nudged_only_far_off_and_settled_at_its_own_speed() {
+        let c = CorrectConfig {
+            pose_nudge: 0.5,
+            pose_nudge_velocity: 0.5,
+            pose_nudge_beyond: 0.006,
+            pose_nudge_contact_beyond: 0.01,
+            ..CorrectConfig::default()
+        };
+        let dt = 1.0 / 30.0;
+        let offset = |d: f32| {
+            let here = one_box().shapes.pose[0];
+            Pose::new(here.translation + Vec3::new(d, 0.0, 0.0), here.rotation)
+        };
+        // 8 mm off: a free object is nudged, one in contact is not.
+        for (touching, nudged) in [(false, true), (true, false)] {
+            let n = nudge_one(&mut one_box(), offset(0.008), 1.0, touching, &c);
+            assert_eq!(n.len(), nudged as usize, "in contact {touching}");
+        }
+        // 30 mm off in contact: nudged half the way beyond 10 mm, settled at its new speed.
+        let mut world = one_box();
+        let centre = world.shape_centroid(0);
+        let n = nudge_one(&mut world, offset(0.03), 1.0, true, &c);
+        let moved = world.shape_centroid(0) - centre;
+        assert!((moved.x - 0.5 * (0.03 - 0.01)).abs() < 1e-4, "{moved}");
+        let speed = n[0].settle_below.expect("settled");
+        assert!((speed - 0.5 * moved.x / dt).abs() < 1e-3, "{speed} m/s");
+        // Free objects are not settled; none in contact is nudged at 0.
+        let n = nudge_one(&mut one_box(), offset(0.03), 1.0, false, &c);
+        assert_eq!(n[0].settle_below, None);
+        let never = CorrectConfig {
+            pose_nudge_contact_beyond: 0.0,
+            ..c
+        };
+        let none = nudge_one(&mut one_box(), offset(0.03), 1.0, true, &never);
         assert!(none.is_empty());
     }
 
@@ -180,7 +249,7 @@ mod tests {
         };
         let dt = 1.0 / 30.0;
         let centre = world.shape_centroid(0);
-        let nudges = nudge_towards_found(&mut world, &[Some(found_at(target))], &[1.0], &c, dt);
+        let nudges = nudge_one(&mut world, target, 1.0, false, &c);
         let moved = world.shape_centroid(0) - centre;
         // A pure translation: the part within `pose_nudge_beyond` is left to the pull.
         assert!(
@@ -209,7 +278,7 @@ mod tests {
         );
         // No share (full agreement): no nudge.
         let mut agreed = one_box();
-        let none = nudge_towards_found(&mut agreed, &[Some(found_at(target))], &[0.0], &c, dt);
+        let none = nudge_one(&mut agreed, target, 0.0, false, &c);
         assert!(none.is_empty());
     }
 }

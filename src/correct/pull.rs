@@ -171,6 +171,29 @@ pub fn pose_pulls(
     pulls
 }
 
+/// Per shape: how far (m) its convincing found pose (`convincing`) is from the model's, as the
+/// mean move of its particles (the tracking error's measure); None where the search found none.
+pub fn found_offsets(world: &World, poses: &[Option<relocate::Found>]) -> Vec<Option<f32>> {
+    let rest = &world.particles.rest;
+    (poses.iter().enumerate())
+        .map(|(s, found)| {
+            let found = found.filter(convincing)?;
+            let here = world.shapes.pose[s];
+            let range = world.shapes.range(s as u32);
+            let n = range.len().max(1) as f32;
+            let moved = range
+                .map(|i| {
+                    found
+                        .pose
+                        .transform_point(rest[i])
+                        .distance(here.transform_point(rest[i]))
+                })
+                .sum::<f32>();
+            Some(moved / n)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -127,7 +127,7 @@ pub struct Solver {
     held_share: Vec<f32>,
     attachments: distance::LongRangeAttachments,
     /// Shapes whose speed the coming tick caps at `SETTLING_SPEED` (`settle`).
-    settling: Vec<ShapeId>,
+    settling: Vec<(ShapeId, f32)>,
     pub stats: TickStats,
 }
 
@@ -286,7 +286,13 @@ impl Solver {
     /// differs by millimetres from the real one), and the overlap is to be resolved in position
     /// without being turned into speed.
     pub fn settle(&mut self, shape: ShapeId) {
-        self.settling.push(shape);
+        self.settle_below(shape, SETTLING_SPEED);
+    }
+
+    /// As `settle`, at no more than `speed` (m/s; at least `SETTLING_SPEED`): an object moved
+    /// while it was already moving keeps the speed it had.
+    pub fn settle_below(&mut self, shape: ShapeId, speed: f32) {
+        self.settling.push((shape, speed.max(SETTLING_SPEED)));
     }
 
     /// Advance one tick, kinematic shapes moving towards their targets.
@@ -656,10 +662,10 @@ impl Solver {
             .for_each(|(i, (v, x))| {
                 *v = (*x - prev[i]) / h;
             });
-        for &s in &self.settling {
+        for &(s, speed) in &self.settling {
             for i in world.shapes.range(s) {
                 let v = &mut world.particles.velocity[i];
-                *v = v.clamp_length_max(SETTLING_SPEED);
+                *v = v.clamp_length_max(speed);
             }
         }
     }

@@ -249,7 +249,7 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
     };
     let clock = std::time::Instant::now();
     // Each tick's silhouette agreement per object, and whether it is lost (`health.csv`).
-    let mut health = String::from("t,object,agreement,lost\n");
+    let mut health = String::from("t,object,agreement,lost,found_offset_mm\n");
     for index in 1..=ticks {
         let inputs = feed.tick(t0 + index as f64 * dt, &config, &mut metrics);
         let report = tracker.tick(&inputs)?;
@@ -277,9 +277,15 @@ pub fn run(recording: &Path, config: &Config, out: &Path, opts: ReplayOptions) -
                 .copied()
                 .flatten()
                 .map_or(String::new(), |a| format!("{a:.3}"));
+            let found = (report.correction.as_ref())
+                .and_then(|c| c.found_offset.get(shape as usize).copied().flatten())
+                .map_or(String::new(), |d| format!("{:.2}", d * 1e3));
             let name = &world.shapes.name[shape as usize];
             let lost = h.is_lost(shape) as u8;
-            health.push_str(&format!("{:.6},{name},{a},{lost}\n", report.time - t0));
+            health.push_str(&format!(
+                "{:.6},{name},{a},{lost},{found}\n",
+                report.time - t0
+            ));
         }
         let tick = Tick {
             index,

@@ -177,6 +177,9 @@ impl Tracker {
             corrector.note_contacts(&self.solver.stats.touched);
             corrector.note_masses(self.solver.inv_mass());
             let mut stats = corrector.correct(&mut self.scene.world, &views, dt)?;
+            for &(shape, speed) in &stats.nudged_in_contact {
+                self.solver.settle_below(shape, speed);
+            }
             let time = self.scene.world.time;
             report.track_events = self.health.update(time, &stats.agreement);
             let searching = Instant::now();
