@@ -520,7 +520,7 @@ fn a_nudge_follows_an_unmodelled_hand_closer_than_the_pull_alone() {
 /// the contact throw it out), so the pull's force alone pushed against the contact. MuJoCo's
 /// heavy5_3000 (the struck box five times lighter than configured): with no nudge in contact it
 /// is tracked 19 mm off on average, turned a quarter turn the images hardly tell apart; nudged
-/// beyond 10 mm and settled (`pose_nudge_contact_beyond`, the default), 2.6 mm.
+/// beyond 10 mm and settled (`pose_nudge_contact_beyond: 0.01`; off by default), 2.6 mm.
 #[test]
 #[ignore = "slow: full tier (tests/run_all.sh)"]
 fn an_object_the_model_holds_in_contact_off_where_the_images_show_it_is_nudged_there() {
