@@ -59,12 +59,8 @@ pub fn nudge_towards_found(
         }
         let here = world.shapes.pose[s];
         let range = world.shapes.range(s as ShapeId);
-        let furthest = range
-            .clone()
-            .map(|i| {
-                let rest = world.particles.rest[i];
-                (found.pose.transform_point(rest) - here.transform_point(rest)).length()
-            })
+        let furthest = (super::pull::particle_moves(world, s, &found.pose))
+            .map(|d| d.length())
             .fold(0.0, f32::max);
         let touching = in_contact.get(s).copied().unwrap_or(false);
         let beyond = match touching {
@@ -93,14 +89,16 @@ pub fn nudge_towards_found(
             mass += world.particles.mass(i);
         }
         world.shapes.pose[s] = to;
-        let fastest = (world.shapes.range(s as ShapeId))
-            .map(|i| world.particles.velocity[i].length())
-            .fold(0.0, f32::max);
+        let fastest = || {
+            (world.shapes.range(s as ShapeId))
+                .map(|i| world.particles.velocity[i].length())
+                .fold(0.0, f32::max)
+        };
         nudges.push(Nudge {
             shape: s as ShapeId,
             motion,
             force: mass * moved / (dt * dt),
-            settle_below: touching.then_some(fastest),
+            settle_below: touching.then(fastest),
         });
     }
     nudges

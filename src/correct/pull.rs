@@ -7,6 +7,7 @@
 //! it never searches (`relocate`) and never applies forces (the rest of `correct`).
 
 use super::{CorrectConfig, relocate};
+use crate::math::Pose;
 use crate::world::World;
 use glam::Vec3;
 
@@ -151,13 +152,8 @@ pub fn pose_pulls(
         let Some(found) = found.filter(convincing) else {
             continue;
         };
-        let here = world.shapes.pose[s];
         let range = world.shapes.range(s as u32);
-        let rest = &world.particles.rest;
-        let moves: Vec<Vec3> = range
-            .clone()
-            .map(|i| found.pose.transform_point(rest[i]) - here.transform_point(rest[i]))
-            .collect();
+        let moves: Vec<Vec3> = particle_moves(world, s, &found.pose).collect();
         let furthest = moves.iter().map(|d| d.length()).fold(0.0, f32::max);
         let keep = (1.0 - dead_zone / furthest).max(0.0);
         for (i, d) in range.zip(moves) {
@@ -171,24 +167,30 @@ pub fn pose_pulls(
     pulls
 }
 
+/// How far each particle of shape `s` moves (m, world) from where the model has it to where
+/// `pose` puts it: the one measure of a found pose's offset that the pull, the nudge and the
+/// reports share.
+pub fn particle_moves<'a>(
+    world: &'a World,
+    s: usize,
+    pose: &'a Pose,
+) -> impl Iterator<Item = Vec3> + 'a {
+    let here = world.shapes.pose[s];
+    let rest = &world.particles.rest;
+    (world.shapes.range(s as u32))
+        .map(move |i| pose.transform_point(rest[i]) - here.transform_point(rest[i]))
+}
+
 /// Per shape: how far (m) its convincing found pose (`convincing`) is from the model's, as the
 /// mean move of its particles (the tracking error's measure); None where the search found none.
 pub fn found_offsets(world: &World, poses: &[Option<relocate::Found>]) -> Vec<Option<f32>> {
-    let rest = &world.particles.rest;
     (poses.iter().enumerate())
         .map(|(s, found)| {
             let found = found.filter(convincing)?;
-            let here = world.shapes.pose[s];
-            let range = world.shapes.range(s as u32);
-            let n = range.len().max(1) as f32;
-            let moved = range
-                .map(|i| {
-                    found
-                        .pose
-                        .transform_point(rest[i])
-                        .distance(here.transform_point(rest[i]))
-                })
-                .sum::<f32>();
+            let n = world.shapes.range(s as u32).len().max(1) as f32;
+            let moved: f32 = particle_moves(world, s, &found.pose)
+                .map(|d| d.length())
+                .sum();
             Some(moved / n)
         })
         .collect()
