@@ -515,35 +515,40 @@ fn a_nudge_follows_an_unmodelled_hand_closer_than_the_pull_alone() {
 }
 
 /// After a collision the model plays out wrong, the model holds the struck box against the box
-/// that struck it, where the images do not have it: the search finds it 10-30 mm off, but an
-/// object the model has in contact was never nudged (a nudge could put it into its pusher and
-/// the contact throw it out), so the pull's force alone pushed against the contact. MuJoCo's
-/// heavy5_3000 (the struck box five times lighter than configured): with no nudge in contact it
-/// is tracked 19 mm off on average, turned a quarter turn the images hardly tell apart; nudged
-/// beyond 10 mm and settled (`pose_nudge_contact_beyond: 0.01`; off by default), 2.6 mm.
+/// that struck it, turned a quarter turn from where the images have it: MuJoCo's heavy5_3000 (the
+/// struck box five times lighter than configured, 60 x 54 mm, so its colours hardly tell the
+/// turn). Colour alone agreed with it 0.67 and up and it was never searched for: 19 mm mean, no
+/// event. Its depth tells: the agreement that tells a lost track reads it too
+/// (`correct::agreement`), falls under 0.6 a few ticks after the strike, and the box is found in
+/// the images and moved there, with an event that says so (a 67 deg turn at 0.97 s: 2.1 mm mean,
+/// 1.2 final). Nudged in contact beyond 10 mm and settled as well (`pose_nudge_contact_beyond:
+/// 0.01`, off by default), it is tracked as closely (2.6 mm mean, 6.0 p95).
 #[test]
 #[ignore = "slow: full tier (tests/run_all.sh)"]
-fn an_object_the_model_holds_in_contact_off_where_the_images_show_it_is_nudged_there() {
+fn an_object_turned_where_only_the_depth_tells_is_found_where_the_images_have_it() {
     let folder = record_as("contact", "heavy5", 3000, None, &[]);
-    let mut errors = Vec::new();
-    for (tag, correct) in [
-        ("kept", "pose_nudge_contact_beyond: 0.0"),
-        ("nudged", "pose_nudge_contact_beyond: 0.01"),
-    ] {
-        errors.push(replayed_with(&folder, tag, correct, "obj2"));
-    }
-    let ((kept_mean, kept_p95), (mean, p95)) = (errors[0], errors[1]);
-    println!(
-        "struck box: not nudged in contact {kept_mean:.1} mm mean (p95 {kept_p95:.1}); nudged \
-         {mean:.1} (p95 {p95:.1})"
+    let m = replay(&folder, &[]);
+    let (mean, final_mm) = (
+        error_mm(&m, "obj2", "mean_mm"),
+        error_mm(&m, "obj2", "final_mm"),
     );
+    let events = m["track_events"].as_array().cloned().unwrap_or_default();
+    println!("struck box: {mean:.1} mm mean, {final_mm:.1} final; events {events:?}");
+    let turned = events.iter().any(|e| {
+        e["object"] == "obj2"
+            && e["event"] == "relocated"
+            && e["turn_deg"].as_f64().is_some_and(|t| t.abs() > 30.0)
+    });
+    assert!(turned, "the box was not found turned: {events:?}");
+    assert!(
+        mean < 5.0 && final_mm < 5.0,
+        "{mean:.1} mm mean, {final_mm:.1} final"
+    );
+    let (mean, p95) = replayed_with(&folder, "nudged", "pose_nudge_contact_beyond: 0.01", "obj2");
+    println!("nudged in contact: {mean:.1} mm mean (p95 {p95:.1})");
     assert!(
         mean < 5.0 && p95 < 10.0,
         "nudged in contact: {mean:.1} mm mean, p95 {p95:.1}"
-    );
-    assert!(
-        kept_mean > 2.0 * mean,
-        "not nudged in contact {kept_mean:.1} mm against {mean:.1}: the case no longer shows it"
     );
 }
 

@@ -25,6 +25,29 @@ fn without_physics() -> Config {
     config
 }
 
+/// Scenario `name`'s true world (simulated by its own configuration) and the model's, started
+/// `offset` away and run with `config`, with or without visual forces.
+fn truth_and_model(
+    name: &str,
+    offset: Pose,
+    config: &Config,
+    visual_forces: bool,
+) -> (Tracker, Tracker) {
+    let truth = Tracker::new(
+        scenario::build(name, Pose::IDENTITY).unwrap(),
+        &scenario::truth_config(name),
+        false,
+    )
+    .unwrap();
+    let model = Tracker::new(
+        scenario::build(name, offset).unwrap(),
+        config,
+        visual_forces,
+    )
+    .unwrap();
+    (truth, model)
+}
+
 fn track_with(
     name: &str,
     offset: Pose,
@@ -34,18 +57,7 @@ fn track_with(
 ) -> Vec<f32> {
     let objects = scenario::object_names(name);
     let cameras = scenario::cameras(name, 320, 180);
-    let mut truth = Tracker::new(
-        scenario::build(name, Pose::IDENTITY).unwrap(),
-        &scenario::truth_config(name),
-        false,
-    )
-    .unwrap();
-    let mut model = Tracker::new(
-        scenario::build(name, offset).unwrap(),
-        &config,
-        visual_forces,
-    )
-    .unwrap();
+    let (mut truth, mut model) = truth_and_model(name, offset, &config, visual_forces);
     let mut errors = Vec::new();
     for tick in 0..ticks {
         truth.predict().unwrap();
@@ -289,19 +301,7 @@ fn health_of(
     ticks: u64,
 ) -> (Vec<pegs::tracker::TrackEvent>, Vec<f32>, f32) {
     let cameras = scenario::cameras(name, 320, 180);
-    let truth_config = scenario::truth_config(name);
-    let mut truth = Tracker::new(
-        scenario::build(name, Pose::IDENTITY).unwrap(),
-        &truth_config,
-        false,
-    )
-    .unwrap();
-    let mut model = Tracker::new(
-        scenario::build(name, offset).unwrap(),
-        &Config::default(),
-        true,
-    )
-    .unwrap();
+    let (mut truth, mut model) = truth_and_model(name, offset, &Config::default(), true);
     let shape = model.world().shape_id("box").unwrap();
     let (mut events, mut agreement) = (Vec::new(), Vec::new());
     for tick in 0..ticks {
@@ -323,6 +323,59 @@ fn health_of(
         .shape_centroid(shape)
         .distance(truth.world().shape_centroid(shape));
     (events, agreement, error)
+}
+
+/// The resting box's agreement after one tick (camera 0 measures the first), its model started
+/// `offset` away, with the depth an ideal camera measures or colour alone.
+fn first_agreement(offset: Pose, with_depth: bool) -> f32 {
+    let name = "resting_box";
+    let cameras = scenario::cameras(name, 320, 180);
+    let (mut truth, mut model) = truth_and_model(name, offset, &Config::default(), true);
+    truth.predict().unwrap();
+    let images = scenario::observe(truth.world(), &cameras, 0.01, 1.0, 0);
+    let mut inputs = TickInputs::with_images(truth.time(), &cameras, images);
+    if with_depth {
+        let seen = scenario::observe_depth_and_labels(truth.world(), &cameras, &["box"]);
+        for (image, (depth, _)) in inputs.images.iter_mut().zip(seen) {
+            image.depth = Some(std::sync::Arc::new(depth));
+        }
+    }
+    model.tick(&inputs).unwrap();
+    let shape = model.world().shape_id("box").unwrap();
+    model
+        .health()
+        .agreement(shape)
+        .expect("camera 0 sees the box")
+}
+
+/// The agreement that tells a lost track reads depth as well as colour. The resting box's model
+/// started 4 cm nearer camera 0 along that camera's line of sight covers the box's own pixels
+/// there, so by colour it agrees about as well as the true pose does; the depth of those pixels is
+/// 4 cm behind it, and by depth it agrees with almost nothing. At the true pose depth changes
+/// nothing.
+#[test]
+fn a_model_held_off_along_a_camera_s_line_of_sight_agrees_in_colour_and_not_in_depth() {
+    let world = scenario::build("resting_box", Pose::IDENTITY)
+        .unwrap()
+        .world;
+    let centre = world.shape_centroid(world.shape_id("box").unwrap());
+    let eye = scenario::cameras("resting_box", 320, 180)[0]
+        .world_to_camera
+        .inverse()
+        .translation;
+    let nearer = Pose::from_translation(0.04 * (eye - centre).normalize());
+    let here = (
+        first_agreement(Pose::IDENTITY, false),
+        first_agreement(Pose::IDENTITY, true),
+    );
+    let off = (
+        first_agreement(nearer, false),
+        first_agreement(nearer, true),
+    );
+    eprintln!("agreement (colour, with depth): at the truth {here:?}, 4 cm nearer {off:?}");
+    assert!(here.0 > 0.9 && here.1 > 0.9, "{here:?}");
+    assert!(off.0 > 0.8, "colour alone sees the box: {off:?}");
+    assert!(off.1 < 0.3, "depth sees past it: {off:?}");
 }
 
 /// Lost-track detection and re-acquisition. Started 1 cm / 5 deg off, the pushed box is tracked:

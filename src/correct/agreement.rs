@@ -5,6 +5,10 @@
 //! that differs from the model's does not read as disagreement; beyond the modelled table, where
 //! there is no scene to compare with, it must be that surface's colour: `looks_like`; where the
 //! camera saw the floor there at the start, that stands in for the scene: `super::backdrop`).
+//! Where the camera sends depth, a Gaussian whose pixel measures a surface further than the
+//! model's own rendered there, by more than a tolerance, does not agree whatever the colour: seen
+//! along a bar's width, a bar the model holds a few centimetres nearer the camera than it is
+//! projects onto the bar's own pixels, and colour alone agreed with it (`depth_shows_behind`).
 //! Near 1 while tracking holds; near 0 once the rendered object no longer overlaps the observed one
 //! (the photometric gradient is then gone too) or something unmodelled covers it.
 //!
@@ -39,12 +43,42 @@ pub fn looks_like(observed: Vec3, own: Vec3, scene: Vec3, coverage: f32) -> bool
 }
 
 /// A window's pixels, row-major: the whole model rendered, the static scene alone and how much of
-/// each pixel it covers, the image.
+/// each pixel it covers, the image, and depth where the camera sends one.
 pub struct WindowPixels<'a> {
     pub rendered: &'a [Vec3],
     pub background: &'a [Vec3],
     pub coverage: &'a [f32],
     pub observed: &'a [Vec3],
+    pub depth: Option<DepthPixels<'a>>,
+}
+
+/// A window's depth, row-major: the depth the camera measures aligned to its image (m, 0
+/// unknown), the model's rendered surface (m: the render's depth over its alpha, 0 where it
+/// covers the pixel less than half), and the tolerance (m) between them
+/// (`CorrectConfig::pose_search_depth`).
+pub struct DepthPixels<'a> {
+    pub measured: &'a [f32],
+    pub surface: &'a [f32],
+    pub tolerance: f32,
+}
+
+/// Whether the camera measures a surface further than the model's own (both m, 0 unknown) by
+/// more than `tolerance`: it sees past where the model has the object. A surface nearer than the
+/// model's says nothing here (something unmodelled in front, which the colour judges). The
+/// model's surface is that of its Gaussians' centres, a particle radius inside the object's:
+/// at the right pose the camera measures nearer, never further.
+pub fn depth_shows_behind(measured: f32, surface: f32, tolerance: f32) -> bool {
+    measured > 0.0 && surface > 0.0 && measured > surface + tolerance
+}
+
+/// The model's rendered surface depth per pixel (m, 0 where it covers less than half): the
+/// render's alpha-weighted depth over its alpha.
+pub fn surface_depth(depth: &[f32], alpha: &[f32]) -> Vec<f32> {
+    depth
+        .iter()
+        .zip(alpha)
+        .map(|(d, a)| if *a >= 0.5 { d / a } else { 0.0 })
+        .collect()
 }
 
 /// Per shape: the agreement in `camera` (None where the object shows fewer than `MIN_VISIBLE`
@@ -61,6 +95,7 @@ pub fn silhouette_agreement(
         background,
         coverage,
         observed,
+        depth: measured_depth,
     } = pixels;
     let mut seen = vec![(0usize, 0usize); world.shapes.len()];
     let width = window.x1 - window.x0;
@@ -91,7 +126,12 @@ pub fn silhouette_agreement(
         }
         let shape = world.particles.shape[world.gaussians.parent[i] as usize] as usize;
         seen[shape].0 += 1;
-        seen[shape].1 += looks_like(*image, *model, *behind, *covered) as usize;
+        let beyond = measured_depth.as_ref().is_some_and(|d| {
+            let (m, r) = (d.measured.get(k), d.surface.get(k));
+            m.zip(r)
+                .is_some_and(|(m, r)| depth_shows_behind(*m, *r, d.tolerance))
+        });
+        seen[shape].1 += (!beyond && looks_like(*image, *model, *behind, *covered)) as usize;
     }
     seen.iter()
         .map(|&(visible, matched)| {
@@ -111,11 +151,17 @@ mod tests {
     const ORANGE: Vec3 = Vec3::new(0.9, 0.4, 0.1);
     const FLOOR: Vec3 = Vec3::new(0.55, 0.55, 0.52);
 
-    /// An orange slab where the model has it, seen from above; the image shows the grey floor
-    /// (the object has gone) or the slab itself; the static scene rendered there is the floor
-    /// (covering every pixel) or nothing (beyond the modelled table: black, uncovered).
-    #[test]
-    fn beyond_the_modelled_table_only_the_objects_own_colour_agrees_with_it() {
+    /// An orange slab 2 cm above the floor, seen from 0.3 m above: its world, the camera, its
+    /// Gaussians, those bonded to it and the render of them over the whole frame.
+    struct Slab {
+        world: World,
+        camera: Camera,
+        cloud: GaussianCloud,
+        free: Vec<usize>,
+        out: crate::render::RenderOutput,
+    }
+
+    fn slab_from_above() -> Slab {
         let mut b = WorldBuilder::new();
         let points = box_lattice(Vec3::new(0.03, 0.02, 0.0), 0.005);
         let at = Pose::from_translation(Vec3::new(0.0, 0.0, 0.02));
@@ -126,20 +172,46 @@ mod tests {
         let free: Vec<usize> = (0..cloud.len())
             .filter(|&i| world.gaussians.parent[i] != NO_PARENT)
             .collect();
-        let full = Roi::full(&camera);
-        let rendered = CpuRenderer::new(RenderSettings::default())
-            .forward(&cloud, &camera, full)
-            .colour;
+        let out = CpuRenderer::new(RenderSettings::default()).forward(
+            &cloud,
+            &camera,
+            Roi::full(&camera),
+        );
+        Slab {
+            world,
+            camera,
+            cloud,
+            free,
+            out,
+        }
+    }
+
+    impl Slab {
+        /// The slab's agreement in the whole frame, seen as `pixels`.
+        fn agreement(&self, pixels: &WindowPixels) -> f32 {
+            let seen = (&self.camera, Roi::full(&self.camera));
+            silhouette_agreement(&self.world, &self.cloud, &self.free, seen, pixels)[0]
+                .expect("the slab is in view")
+        }
+    }
+
+    /// An orange slab where the model has it, seen from above; the image shows the grey floor
+    /// (the object has gone) or the slab itself; the static scene rendered there is the floor
+    /// (covering every pixel) or nothing (beyond the modelled table: black, uncovered).
+    #[test]
+    fn beyond_the_modelled_table_only_the_objects_own_colour_agrees_with_it() {
+        let slab = slab_from_above();
+        let rendered = &slab.out.colour;
         let n = rendered.len();
         let agreement = |observed: &[Vec3], scene: Vec3, coverage: f32| {
             let pixels = WindowPixels {
-                rendered: &rendered,
+                rendered,
                 background: &vec![scene; n],
                 coverage: &vec![coverage; n],
                 observed,
+                depth: None,
             };
-            silhouette_agreement(&world, &cloud, &free, (&camera, full), &pixels)[0]
-                .expect("the slab is in view")
+            slab.agreement(&pixels)
         };
         let gone = vec![FLOOR; n];
         assert!(agreement(&gone, FLOOR, 1.0) < 0.05, "the floor, modelled");
@@ -150,12 +222,44 @@ mod tests {
             "the floor, beyond the model"
         );
         assert!(
-            agreement(&rendered, Vec3::ZERO, 0.0) > 0.95,
+            agreement(rendered, Vec3::ZERO, 0.0) > 0.95,
             "the slab, beyond the model"
         );
         assert!(
-            agreement(&rendered, FLOOR, 1.0) > 0.95,
+            agreement(rendered, FLOOR, 1.0) > 0.95,
             "the slab, on the floor"
         );
+    }
+
+    /// The same slab 0.28 m below the camera, seen in its own colour everywhere (as a bar the model
+    /// holds nearer the camera than it is still covers its own pixels, seen along its width). The
+    /// depth there decides: the slab's own surface (0.28 m) or a hand above it (0.2 m) agree, the
+    /// table 2 cm below the slab (0.3 m) does not, and no depth leaves it to the colour.
+    #[test]
+    fn an_object_whose_pixels_measure_a_surface_behind_it_does_not_agree_whatever_their_colour() {
+        let slab = slab_from_above();
+        let out = &slab.out;
+        let (rendered, surface) = (&out.colour, surface_depth(&out.depth, &out.alpha));
+        let n = rendered.len();
+        let agreement = |depth: Option<f32>| {
+            let measured = depth.map(|d| vec![d; n]);
+            let pixels = WindowPixels {
+                rendered,
+                background: &vec![FLOOR; n],
+                coverage: &vec![1.0; n],
+                observed: rendered,
+                depth: measured.as_deref().map(|measured| DepthPixels {
+                    measured,
+                    surface: &surface,
+                    tolerance: 0.01,
+                }),
+            };
+            slab.agreement(&pixels)
+        };
+        assert!(agreement(None) > 0.95, "colour alone");
+        assert!(agreement(Some(0.28)) > 0.95, "its own surface");
+        assert!(agreement(Some(0.2)) > 0.95, "something nearer");
+        assert!(agreement(Some(0.0)) > 0.95, "depth unknown");
+        assert!(agreement(Some(0.3)) < 0.05, "the table behind it");
     }
 }
