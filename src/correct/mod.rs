@@ -526,9 +526,8 @@ pub struct CorrectStats {
     /// (`agreement`), with its depth where it sends one: what tells a lost track (`tracker`).
     /// None where it shows too little of the object.
     pub agreement: Vec<Option<f32>>,
-    /// The same by colour alone: what sets the pose pull's share (`pull_share`). With depth, a
-    /// shape built a few millimetres past the object's edge agreed 0.99 instead of 0.999 at rest
-    /// and was pulled on by the search's noise (MuJoCo's hand_4103: 1.6 -> 6.1 mm at rest).
+    /// The same by colour alone: what sets the pose pull's share (`pull_share`; why, at
+    /// `agreement::with_and_without_depth`).
     pub agreement_colour: Vec<Option<f32>>,
     /// Per shape: how far (m, its particles' mean move) the local search found the object
     /// convincingly off the model's pose (`pull::convincing`) before this tick's nudge; None where
@@ -807,42 +806,26 @@ impl Corrector {
                     * scale;
                 loss += camera_loss;
                 if let Some((behind, coverage)) = &behind {
-                    let width = view.camera.width;
-                    let measured = view
-                        .depth
-                        .filter(|d| {
-                            let pixels = width as usize * view.camera.height as usize;
-                            c.pose_search_depth > 0.0 && d.len() == pixels
-                        })
-                        .map(|d| crop(d, width, *window));
+                    let measured = depth_in_window(view, *window, c.pose_search_depth);
                     let surface = measured
                         .as_ref()
                         .map(|_| agreement::surface_depth(&out.depth, &out.alpha));
-                    let mut pixels = agreement::WindowPixels {
+                    let pixels = agreement::WindowPixels {
                         rendered: &out.colour,
                         background: behind,
                         coverage,
                         observed: target,
-                        depth: None,
-                    };
-                    let seen = (&view.camera, *window);
-                    stats.agreement_colour =
-                        agreement::silhouette_agreement(world, &cloud, &free, seen, &pixels);
-                    pixels.depth =
-                        measured
-                            .as_deref()
-                            .zip(surface.as_deref())
-                            .map(|(measured, surface)| agreement::DepthPixels {
+                        depth: (measured.as_deref().zip(surface.as_deref())).map(
+                            |(measured, surface)| agreement::DepthPixels {
                                 measured,
                                 surface,
                                 tolerance: c.pose_search_depth,
-                            });
-                    stats.agreement = match pixels.depth {
-                        Some(_) => {
-                            agreement::silhouette_agreement(world, &cloud, &free, seen, &pixels)
-                        }
-                        None => stats.agreement_colour.clone(),
+                            },
+                        ),
                     };
+                    let seen = (&view.camera, *window);
+                    (stats.agreement, stats.agreement_colour) =
+                        agreement::with_and_without_depth(world, &cloud, &free, seen, &pixels);
                 }
                 if !rendered[v] {
                     rendered[v] = true;
@@ -1252,6 +1235,15 @@ impl DisplacementState {
         }
         accel
     }
+}
+
+/// The view's depth cropped to `window`, where it sends one of its size and the pose search reads
+/// depth (`tolerance` above 0).
+fn depth_in_window(view: &View, window: Roi, tolerance: f32) -> Option<Vec<f32>> {
+    let (width, height) = (view.camera.width, view.camera.height);
+    (view.depth)
+        .filter(|d| tolerance > 0.0 && d.len() == width as usize * height as usize)
+        .map(|d| crop(d, width, window))
 }
 
 fn crop<T: Copy>(image: &[T], width: u32, w: Roi) -> Vec<T> {
