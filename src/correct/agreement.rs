@@ -44,7 +44,6 @@ pub fn looks_like(observed: Vec3, own: Vec3, scene: Vec3, coverage: f32) -> bool
 
 /// A window's pixels, row-major: the whole model rendered, the static scene alone and how much of
 /// each pixel it covers, the image, and depth where the camera sends one.
-#[derive(Clone, Copy)]
 pub struct WindowPixels<'a> {
     pub rendered: &'a [Vec3],
     pub background: &'a [Vec3],
@@ -54,13 +53,12 @@ pub struct WindowPixels<'a> {
 }
 
 /// A window's depth, row-major: the depth the camera measures aligned to its image (m, 0
-/// unknown), the model's rendered surface (m: the render's depth over its alpha, 0 where it
-/// covers the pixel less than half), and the tolerance (m) between them
-/// (`CorrectConfig::pose_search_depth`).
-#[derive(Clone, Copy)]
+/// unknown), the model's render (its alpha-weighted depth and its alpha: `surface_at`), and the
+/// tolerance (m) between the two (`CorrectConfig::pose_search_depth`).
 pub struct DepthPixels<'a> {
     pub measured: &'a [f32],
-    pub surface: &'a [f32],
+    pub rendered_depth: &'a [f32],
+    pub alpha: &'a [f32],
     pub tolerance: f32,
 }
 
@@ -73,25 +71,45 @@ pub fn depth_shows_behind(measured: f32, surface: f32, tolerance: f32) -> bool {
     measured > 0.0 && surface > 0.0 && measured > surface + tolerance
 }
 
-/// The model's rendered surface depth per pixel (m, 0 where it covers less than half): the
-/// render's alpha-weighted depth over its alpha.
-pub fn surface_depth(depth: &[f32], alpha: &[f32]) -> Vec<f32> {
-    depth
-        .iter()
-        .zip(alpha)
-        .map(|(d, a)| if *a >= 0.5 { d / a } else { 0.0 })
-        .collect()
+/// The model's rendered surface depth at a pixel (m, 0 where it covers it less than half): the
+/// render's alpha-weighted `depth` over its `alpha`.
+pub fn surface_at(depth: f32, alpha: f32) -> f32 {
+    if alpha >= 0.5 { depth / alpha } else { 0.0 }
 }
 
-/// Per shape: the agreement in `camera` (None where the object shows fewer than `MIN_VISIBLE`
-/// Gaussians in `window`).
+impl DepthPixels<'_> {
+    /// Whether pixel `k` measures a surface behind the model's there (`depth_shows_behind`).
+    fn shows_behind(&self, k: usize) -> bool {
+        let (Some(m), Some(d), Some(a)) = (
+            self.measured.get(k),
+            self.rendered_depth.get(k),
+            self.alpha.get(k),
+        ) else {
+            return false;
+        };
+        depth_shows_behind(*m, surface_at(*d, *a), self.tolerance)
+    }
+}
+
+/// Per shape, the agreement with its depth where the camera sends one (what tells a lost track)
+/// and by colour alone (what sets the pose pull's share, `super::pull::pull_share`: with depth, a
+/// shape built from RGB-D a few millimetres past the object's edge agreed 0.99 instead of 0.999
+/// at rest and was pulled on by the search's noise, MuJoCo's hand_4103 1.6 -> 6.1 mm off at
+/// rest). Without depth the two are the same.
+pub struct Agreement {
+    pub with_depth: Vec<Option<f32>>,
+    pub colour: Vec<Option<f32>>,
+}
+
+/// Per shape: the agreement in `camera`, with depth and by colour alone, in one pass (None where
+/// the object shows fewer than `MIN_VISIBLE` Gaussians in `window`).
 pub fn silhouette_agreement(
     world: &World,
     cloud: &GaussianCloud,
     free: &[usize],
     (camera, window): (&Camera, Roi),
     pixels: &WindowPixels,
-) -> Vec<Option<f32>> {
+) -> Agreement {
     let WindowPixels {
         rendered,
         background,
@@ -99,7 +117,8 @@ pub fn silhouette_agreement(
         observed,
         depth: measured_depth,
     } = pixels;
-    let mut seen = vec![(0usize, 0usize); world.shapes.len()];
+    // Per shape: visible, matched by colour, matched by colour and depth.
+    let mut seen = vec![(0usize, 0usize, 0usize); world.shapes.len()];
     let width = window.x1 - window.x0;
     for &i in free {
         let (u, v, depth) = camera.project(cloud.mean[i]);
@@ -128,41 +147,19 @@ pub fn silhouette_agreement(
         }
         let shape = world.particles.shape[world.gaussians.parent[i] as usize] as usize;
         seen[shape].0 += 1;
-        let beyond = measured_depth.as_ref().is_some_and(|d| {
-            let (m, r) = (d.measured.get(k), d.surface.get(k));
-            m.zip(r)
-                .is_some_and(|(m, r)| depth_shows_behind(*m, *r, d.tolerance))
-        });
-        seen[shape].1 += (!beyond && looks_like(*image, *model, *behind, *covered)) as usize;
+        if looks_like(*image, *model, *behind, *covered) {
+            seen[shape].1 += 1;
+            let beyond = measured_depth.as_ref().is_some_and(|d| d.shows_behind(k));
+            seen[shape].2 += !beyond as usize;
+        }
     }
-    seen.iter()
-        .map(|&(visible, matched)| {
-            (visible >= MIN_VISIBLE).then(|| matched as f32 / visible as f32)
-        })
-        .collect()
-}
-
-/// Per shape: the agreement with `pixels`' depth where it has one (what tells a lost track), and
-/// by colour alone (what sets the pose pull's share, `super::pull::pull_share`: with depth, a shape
-/// built from RGB-D a few millimetres past the object's edge agreed 0.99 instead of 0.999 at rest
-/// and was pulled on by the search's noise, MuJoCo's hand_4103 1.6 -> 6.1 mm off at rest).
-pub fn with_and_without_depth(
-    world: &World,
-    cloud: &GaussianCloud,
-    free: &[usize],
-    seen: (&Camera, Roi),
-    pixels: &WindowPixels,
-) -> (Vec<Option<f32>>, Vec<Option<f32>>) {
-    let colour_only = WindowPixels {
-        depth: None,
-        ..*pixels
+    let share = |visible: usize, matched: usize| {
+        (visible >= MIN_VISIBLE).then(|| matched as f32 / visible as f32)
     };
-    let colour = silhouette_agreement(world, cloud, free, seen, &colour_only);
-    let with_depth = match pixels.depth {
-        Some(_) => silhouette_agreement(world, cloud, free, seen, pixels),
-        None => colour.clone(),
-    };
-    (with_depth, colour)
+    Agreement {
+        with_depth: seen.iter().map(|&(v, _, m)| share(v, m)).collect(),
+        colour: seen.iter().map(|&(v, m, _)| share(v, m)).collect(),
+    }
 }
 
 #[cfg(test)]
@@ -215,7 +212,7 @@ mod tests {
         /// The slab's agreement in the whole frame, seen as `pixels`.
         fn agreement(&self, pixels: &WindowPixels) -> f32 {
             let seen = (&self.camera, Roi::full(&self.camera));
-            silhouette_agreement(&self.world, &self.cloud, &self.free, seen, pixels)[0]
+            silhouette_agreement(&self.world, &self.cloud, &self.free, seen, pixels).with_depth[0]
                 .expect("the slab is in view")
         }
     }
@@ -264,7 +261,7 @@ mod tests {
     fn an_object_whose_pixels_measure_a_surface_behind_it_does_not_agree_whatever_their_colour() {
         let slab = slab_from_above();
         let out = &slab.out;
-        let (rendered, surface) = (&out.colour, surface_depth(&out.depth, &out.alpha));
+        let rendered = &out.colour;
         let n = rendered.len();
         let agreement = |depth: Option<f32>| {
             let measured = depth.map(|d| vec![d; n]);
@@ -275,7 +272,8 @@ mod tests {
                 observed: rendered,
                 depth: measured.as_deref().map(|measured| DepthPixels {
                     measured,
-                    surface: &surface,
+                    rendered_depth: &out.depth,
+                    alpha: &out.alpha,
                     tolerance: 0.01,
                 }),
             };

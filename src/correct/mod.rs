@@ -527,7 +527,7 @@ pub struct CorrectStats {
     /// None where it shows too little of the object.
     pub agreement: Vec<Option<f32>>,
     /// The same by colour alone: what sets the pose pull's share (`pull_share`; why, at
-    /// `agreement::with_and_without_depth`).
+    /// `agreement::Agreement`).
     pub agreement_colour: Vec<Option<f32>>,
     /// Per shape: how far (m, its particles' mean move) the local search found the object
     /// convincingly off the model's pose (`pull::convincing`) before this tick's nudge; None where
@@ -807,25 +807,22 @@ impl Corrector {
                 loss += camera_loss;
                 if let Some((behind, coverage)) = &behind {
                     let measured = depth_in_window(view, *window, c.pose_search_depth);
-                    let surface = measured
-                        .as_ref()
-                        .map(|_| agreement::surface_depth(&out.depth, &out.alpha));
                     let pixels = agreement::WindowPixels {
                         rendered: &out.colour,
                         background: behind,
                         coverage,
                         observed: target,
-                        depth: (measured.as_deref().zip(surface.as_deref())).map(
-                            |(measured, surface)| agreement::DepthPixels {
-                                measured,
-                                surface,
-                                tolerance: c.pose_search_depth,
-                            },
-                        ),
+                        depth: measured.as_deref().map(|measured| agreement::DepthPixels {
+                            measured,
+                            rendered_depth: &out.depth,
+                            alpha: &out.alpha,
+                            tolerance: c.pose_search_depth,
+                        }),
                     };
                     let seen = (&view.camera, *window);
-                    (stats.agreement, stats.agreement_colour) =
-                        agreement::with_and_without_depth(world, &cloud, &free, seen, &pixels);
+                    let agreement::Agreement { with_depth, colour } =
+                        agreement::silhouette_agreement(world, &cloud, &free, seen, &pixels);
+                    (stats.agreement, stats.agreement_colour) = (with_depth, colour);
                 }
                 if !rendered[v] {
                     rendered[v] = true;
