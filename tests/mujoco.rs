@@ -449,9 +449,9 @@ fn config_with(folder: &Path, tag: &str, correct: &str) -> PathBuf {
     path
 }
 
-/// `folder` replayed with `correct` settings added (`config_with`) into `out_TAG`: `object`'s
-/// mean and p95 tracking error (mm).
-fn replayed_with(folder: &Path, tag: &str, correct: &str, object: &str) -> (f64, f64) {
+/// `folder` replayed with `correct` settings added (`config_with`) into `out_TAG`: its metrics
+/// and the folder written.
+fn replay_with(folder: &Path, tag: &str, correct: &str) -> (serde_json::Value, PathBuf) {
     let config = config_with(folder, tag, correct);
     let out = folder.join(format!("out_{tag}"));
     run(Command::new(env!("CARGO_BIN_EXE_pegs")).args([
@@ -462,7 +462,12 @@ fn replayed_with(folder: &Path, tag: &str, correct: &str, object: &str) -> (f64,
         "--out",
         out.to_str().unwrap(),
     ]));
-    let m = json(&out.join("metrics.json"));
+    (json(&out.join("metrics.json")), out)
+}
+
+/// `replay_with`: `object`'s mean and p95 tracking error (mm).
+fn replayed_with(folder: &Path, tag: &str, correct: &str, object: &str) -> (f64, f64) {
+    let (m, _) = replay_with(folder, tag, correct);
     (
         error_mm(&m, object, "mean_mm"),
         error_mm(&m, object, "p95_mm"),
@@ -521,19 +526,26 @@ fn a_nudge_follows_an_unmodelled_hand_closer_than_the_pull_alone() {
 /// event. Its depth tells: the agreement that tells a lost track reads it too
 /// (`correct::agreement`), falls under 0.6 a few ticks after the strike, and the box is found in
 /// the images and moved there, with an event that says so (a 67 deg turn at 0.97 s: 2.1 mm mean,
-/// 1.2 final). Nudged in contact beyond 10 mm and settled as well (`pose_nudge_contact_beyond:
-/// 0.01`, off by default), it is tracked as closely (2.6 mm mean, 6.0 p95).
+/// 1.2 final). That is replayed with no nudge in contact (`pose_nudge_contact_beyond: 0`), the
+/// default until the nudge in contact was switched on; with it (the default, 10 mm) the box is
+/// nudged there before it is lost (1.8 mm mean, 1.4 final, no event).
 #[test]
 #[ignore = "slow: full tier (tests/run_all.sh)"]
 fn an_object_turned_where_only_the_depth_tells_is_found_where_the_images_have_it() {
     let folder = record_as("contact", "heavy5", 3000, None, &[]);
-    let m = replay(&folder, &[]);
+    let (m, _) = replay_with(
+        &folder,
+        "no_contact_nudge",
+        "pose_nudge_contact_beyond: 0.0",
+    );
     let (mean, final_mm) = (
         error_mm(&m, "obj2", "mean_mm"),
         error_mm(&m, "obj2", "final_mm"),
     );
     let events = m["track_events"].as_array().cloned().unwrap_or_default();
-    println!("struck box: {mean:.1} mm mean, {final_mm:.1} final; events {events:?}");
+    println!(
+        "struck box, no nudge in contact: {mean:.1} mm mean, {final_mm:.1} final; events {events:?}"
+    );
     let turned = events.iter().any(|e| {
         e["object"] == "obj2"
             && e["event"] == "relocated"
@@ -544,8 +556,12 @@ fn an_object_turned_where_only_the_depth_tells_is_found_where_the_images_have_it
         mean < 5.0 && final_mm < 5.0,
         "{mean:.1} mm mean, {final_mm:.1} final"
     );
-    let (mean, p95) = replayed_with(&folder, "nudged", "pose_nudge_contact_beyond: 0.01", "obj2");
-    println!("nudged in contact: {mean:.1} mm mean (p95 {p95:.1})");
+    let m = replay(&folder, &[]);
+    let (mean, p95) = (
+        error_mm(&m, "obj2", "mean_mm"),
+        error_mm(&m, "obj2", "p95_mm"),
+    );
+    println!("as configured (nudged in contact): {mean:.1} mm mean (p95 {p95:.1})");
     assert!(
         mean < 5.0 && p95 < 10.0,
         "nudged in contact: {mean:.1} mm mean, p95 {p95:.1}"
@@ -570,44 +586,60 @@ fn final_tilt(path: &Path, object: &str) -> f64 {
         .acos()
 }
 
+/// A T-block on a cord the model lacks, pushed twice, each push planned from where it stood at
+/// the start (`--plan-from-start`): the second brings the rod down onto it at 1.96 s, as an arm
+/// model that is off would. MuJoCo's kinematic rod passes into it and the images show it flat.
+/// With no nudge in contact (`pose_nudge_contact_beyond: 0`, the default until the nudge in
+/// contact was switched on) the model throws it about and by 2.17 s has it on its side (93 deg).
+/// The search for it used to turn it only about the vertical from where it was, so it was found
+/// on its side and lost: it left the modelled table (366 mm mean). Found standing as it started,
+/// it is tracked to the end (3.9 mm mean, 8.1 p95, 0 deg final tilt, when the nudge in contact
+/// came). As configured, nudged towards where the images have it while the rod is in it, the
+/// model never tips it (3.8 mm mean, 9.0 p95). Seed 1400 was recorded after this was built. (The guard was tether 1301, the seed
+/// this was found on; built without phantom cells (`rgbd::without_phantoms`), the model no
+/// longer tips that one over.)
 #[test]
 #[ignore = "slow: full tier (tests/run_all.sh)"]
 fn an_object_the_model_tips_over_is_found_standing_where_the_cameras_see_it_stand() {
-    // A T-block on a cord the model lacks, pushed twice, each push planned from where it stood at
-    // the start (`--plan-from-start`): the second brings the rod down onto it at 1.96 s, as an
-    // arm model that is off would. MuJoCo's kinematic rod passes into it and the images show it
-    // flat; the model throws it about and by 2.17 s has it on its side (93 deg). The search for
-    // it used to turn it only about the vertical from where it was, so it was found on its side
-    // and lost: it left the modelled table (366 mm mean). Found standing as it started, it is
-    // tracked to the end (6.3 mm mean, 10.7 p95, 0 deg final tilt). Seed 1400 was recorded
-    // after this was built. (The guard was tether 1301, the seed this was found on; built
-    // without phantom cells (`rgbd::without_phantoms`), the model no longer tips that one over.)
     let folder = record_as("tipped", "tether", 1400, None, &["--plan-from-start"]);
     let second = &json(&folder.join("truth.json"))["pushes"][1];
     assert!(
         second["inside"].as_array().is_some_and(|o| !o.is_empty()),
         "the second push no longer comes down into the T-block: {second}"
     );
+    let truth_tilt = final_tilt(&folder.join("ground_truth.csv"), "obj1").to_degrees();
+    assert!(
+        truth_tilt < 5.0,
+        "MuJoCo's T-block ends tilted {truth_tilt} deg"
+    );
+    let (m, out) = replay_with(
+        &folder,
+        "no_contact_nudge",
+        "pose_nudge_contact_beyond: 0.0",
+    );
+    let (mean, p95) = (
+        error_mm(&m, "obj1", "mean_mm"),
+        error_mm(&m, "obj1", "p95_mm"),
+    );
+    let tilt = final_tilt(&out.join("objects.csv"), "obj1").to_degrees();
+    let events = m["track_events"].as_array().cloned().unwrap_or_default();
+    let stood_up = events.iter().any(|e| {
+        e["event"] == "relocated" && e["turn_deg"].as_f64().is_some_and(|turn| turn > 45.0)
+    });
+    println!(
+        "tether_1400, no nudge in contact: mean {mean:.1} p95 {p95:.1} mm; final tilt {tilt:.1} \
+         deg (truth {truth_tilt:.1}); events {events:?}"
+    );
+    assert!(stood_up, "no relocation turned it back: {events:?}");
+    assert!(tilt < 10.0, "tracked on its side at the end: {tilt} deg");
+    assert!(mean < 8.0 && p95 < 15.0, "mean {mean} p95 {p95} mm");
     let m = replay(&folder, &[]);
     let (mean, p95) = (
         error_mm(&m, "obj1", "mean_mm"),
         error_mm(&m, "obj1", "p95_mm"),
     );
     let tilt = final_tilt(&folder.join("out/objects.csv"), "obj1").to_degrees();
-    let truth_tilt = final_tilt(&folder.join("ground_truth.csv"), "obj1").to_degrees();
-    let events = m["track_events"].as_array().cloned().unwrap_or_default();
-    let stood_up = events.iter().any(|e| {
-        e["event"] == "relocated" && e["turn_deg"].as_f64().is_some_and(|turn| turn > 45.0)
-    });
-    println!(
-        "tether_1400: mean {mean:.1} p95 {p95:.1} mm; final tilt {tilt:.1} deg (truth \
-         {truth_tilt:.1}); events {events:?}"
-    );
-    assert!(
-        truth_tilt < 5.0,
-        "MuJoCo's T-block ends tilted {truth_tilt} deg"
-    );
-    assert!(stood_up, "no relocation turned it back: {events:?}");
+    println!("tether_1400 as configured: mean {mean:.1} p95 {p95:.1} mm; final tilt {tilt:.1} deg");
     assert!(tilt < 10.0, "tracked on its side at the end: {tilt} deg");
     assert!(mean < 8.0 && p95 < 15.0, "mean {mean} p95 {p95} mm");
 }
