@@ -405,8 +405,8 @@ impl Default for CorrectConfig {
             pose_nudge_velocity: 0.5,
             pose_nudge_beyond: 0.006,
             // On issue 25's model errors (MuJoCo seeds 4900-4903, recorded after 0 was the default;
-            // 32 objects): objects meeting its bar 20 -> 29, the controls as before. README: "A
-            // nudge in contact".
+            // 32 objects): objects meeting its bar 20 -> 29, the controls as before. README: "The
+            // nudge in contact, on by default".
             pose_nudge_contact_beyond: 0.01,
             max_image_age: 0.07,
             use_roi: true,
@@ -561,7 +561,8 @@ pub struct Corrector {
     /// Each particle's pose pull across ticks (`PullState`).
     pulls: Vec<PullState>,
     /// Per shape: whether the predict step before this correction had it touch the robot or
-    /// another object (`note_contacts`); such an object is not nudged.
+    /// another object (`note_contacts`); such an object is nudged only far off
+    /// (`CorrectConfig::pose_nudge_contact_beyond`).
     in_contact: Vec<bool>,
     /// The inverse masses the physics integrates the forces with (`note_masses`); empty: the
     /// world's own.
