@@ -117,6 +117,14 @@ pub struct CorrectConfig {
     /// as a real offset pulls; depth is not. 0: colour alone, and the node reads depth for
     /// initialisation only (set it at start: the subscription is chosen then).
     pub pose_search_depth: f32,
+    /// Where a camera sends depth (`pose_search_depth` > 0), the ring's points
+    /// (`pose_search_ring`) are judged by it alone: a point matches where nothing stands more
+    /// than `pose_search_depth` in front of it, whatever its colour; on a pixel without depth,
+    /// by colour as before. The colour just outside an object another renderer drew (its
+    /// shadow, its blurred edge) can look like the object and push a resting object's found
+    /// pose off; its depth does not. false: colour and depth both (README, "The ring judged by
+    /// depth").
+    pub pose_search_ring_by_depth: bool,
     pub pose_gain: f32,
     /// Soft (10, not 30): the offset is measured once a tick on a grid of a third of a
     /// centimetre, so its change per second jumps by a grid step at a time, and with the pull held
@@ -359,6 +367,7 @@ impl Default for CorrectConfig {
             pose_search_radius: 0.04,
             pose_search_ring: 0.0,
             pose_search_depth: 0.01,
+            pose_search_ring_by_depth: false,
             // MuJoCo model-error recordings, seeds 0-2 (tuning), mean error of 24 objects: 600 /
             // 40 / 3000 left a T-block on a sticky table oscillating (16.9 mm); 300 / 30 / 1500
             // held it (3.4 mm) and the rest alike. 1500 / 50 (the Gaussians' gain) diverged: a

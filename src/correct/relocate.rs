@@ -9,7 +9,8 @@
 //! Gaussian behind the object's near side (`Probe::seen_by`), or on a pixel the model has the robot
 //! or another object on (`Others::covering`), counts neither for nor against. Where asked
 //! (`Search::ring`), points just outside the object's outline are scored too, matching where they
-//! look like the static scene (`Probe::add_ring`). A coarse grid over the search radius, then a
+//! look like the static scene (`Probe::add_ring`), or, with `Search::ring_by_depth`, where the
+//! measured depth has nothing in front of them. A coarse grid over the search radius, then a
 //! fine one around its best; candidates over another tracked object are skipped. Where a camera
 //! sends depth with its colour (`Search::depth`), a Gaussian matches only where the depth there
 //! is its own too, and counts neither way where something nearer than the object hides it; the
@@ -66,6 +67,10 @@ pub struct Search {
     /// front of it (`Probe::depth_agrees`); 0: colour alone. Needs `seen_at_reference` (a
     /// Gaussian on the object's far side never has its own depth).
     pub depth: f32,
+    /// Where the pixel has a measured depth (and `depth` > 0), a ring point is judged by it
+    /// alone: it matches where nothing stands in front of it, whatever its colour
+    /// (`CorrectConfig::pose_search_ring_by_depth`).
+    pub ring_by_depth: bool,
 }
 
 impl Search {
@@ -85,6 +90,7 @@ impl Search {
             seen_at_reference: true,
             ring,
             depth: 0.0,
+            ring_by_depth: false,
         }
     }
 }
@@ -104,6 +110,7 @@ impl Default for Search {
             seen_at_reference: false,
             ring: 0.0,
             depth: 0.0,
+            ring_by_depth: false,
         }
     }
 }
@@ -157,6 +164,8 @@ struct Probe {
     others: Arc<HashSet<(i32, i32)>>,
     /// `Search::depth`: 0, colour alone.
     depth: f32,
+    /// `Search::ring_by_depth`.
+    ring_by_depth: bool,
     /// The object's width (m, twice its furthest Gaussian from its centre): a pixel measured
     /// nearer than a Gaussian by more than it shows something else (`Depth::Hidden`).
     width: f32,
@@ -232,6 +241,7 @@ impl Probe {
             footprint,
             others: Arc::new(others),
             depth: 0.0,
+            ring_by_depth: false,
             width,
             depth_trusted: Vec::new(),
         }
@@ -340,6 +350,7 @@ impl Probe {
             footprint: self.footprint.clone(),
             others: self.others.clone(),
             depth: self.depth,
+            ring_by_depth: self.ring_by_depth,
             width: self.width,
             depth_trusted: (self.depth_trusted.iter().step_by(stride.max(1)))
                 .copied()
@@ -414,13 +425,19 @@ impl Probe {
                     continue;
                 }
                 let trusted = self.depth_trusted.get(i).copied().unwrap_or(true);
-                let depth = match f.depth {
-                    Some(d) if self.depth > 0.0 && trusted => {
-                        self.depth_agrees(d[k], z, self.size[i], *ring)
-                    }
-                    _ => Depth::Agrees,
+                let measured = f
+                    .depth
+                    .filter(|_| self.depth > 0.0 && trusted)
+                    .map(|d| d[k]);
+                let depth = match measured {
+                    Some(m) => self.depth_agrees(m, z, self.size[i], *ring),
+                    None => Depth::Agrees,
                 };
-                let like_object = super::agreement::looks_like(o, *c, bg, f.coverage[k]);
+                // A ring point judged by its depth alone where the pixel has one: the colour
+                // beside an object another renderer drew (its shadow) can look like the object.
+                let by_depth = *ring && self.ring_by_depth && measured.is_some_and(|m| m > 0.0);
+                let like_object =
+                    !by_depth && super::agreement::looks_like(o, *c, bg, f.coverage[k]);
                 // Something nearer than the Gaussian: the object's own surface where the pixel
                 // looks like it (the pose sinks the Gaussian into the object), else something
                 // the model does not have, which counts neither way. Left out either way, a
@@ -732,6 +749,7 @@ impl Corrector {
         }
         let search = Search {
             depth: self.config.pose_search_depth,
+            ring_by_depth: self.config.pose_search_ring_by_depth,
             ..Search::local(
                 radius,
                 self.config.occluder_threshold,
@@ -854,6 +872,7 @@ fn search_around(
             .map(|f| probe.seen_by(&reference, f.camera))
             .collect();
         probe.depth = search.depth;
+        probe.ring_by_depth = search.ring_by_depth;
     }
     let here = world.shapes.pose[shape as usize];
     let thin = |n: usize| probe.thinned(probe.body.len().div_ceil(n.max(1)));
@@ -1422,6 +1441,67 @@ mod tests {
         assert!(
             ringed[0] > ringed[1] + 0.03 && ringed[1] > ringed[2],
             "with the ring: {ringed:?}"
+        );
+    }
+
+    #[test]
+    fn a_ring_point_on_a_shadow_that_looks_like_the_object_matches_by_its_depth_and_not_by_its_colour()
+     {
+        // The object is a slab 6 x 5 cm at the origin, as its depth shows; the colour shows
+        // 9 x 8 cm of blue (a shadow as dark as the slab 1.5 cm past every side, as another
+        // renderer may draw one). The model has the 6 cm slab where it is, with points 8 mm
+        // outside its outline. Judged by colour, the ring's points land on the shadow and count
+        // against the true pose; judged by depth, they land on the table and match. Without
+        // depth at the pixels, the ring is judged by colour either way.
+        let shown = {
+            let mut b = WorldBuilder::new();
+            let points = box_lattice(Vec3::new(0.045, 0.04, 0.0), 0.005);
+            let at = Pose::from_translation(Vec3::new(0.0, 0.0, 0.02));
+            b.add_rigid("slab and shadow", &points, 0.0025, 0.001, at, BLUE);
+            b.build()
+        };
+        let (model, s) = blue_slab(0.06, 0.0);
+        let centred = model.shapes.pose[s as usize];
+        let score = |with_depth: bool, by_depth: bool, pose: &Pose| {
+            let views: Vec<Seen> = Seen::around(&shown)
+                .into_iter()
+                .map(|v| match with_depth {
+                    true => v.with_depth(0.0225, Vec3::ZERO, (0.0325, 0.0275), None),
+                    false => v,
+                })
+                .collect();
+            let frames: Vec<Frame> = views.iter().map(Seen::frame).collect();
+            let mut probe = Probe::of(&model, s, 0.0);
+            probe.add_ring(&centred, 0.008);
+            probe.seen = (frames.iter())
+                .map(|f| probe.seen_by(&centred, f.camera))
+                .collect();
+            probe.depth = 0.005;
+            probe.ring_by_depth = by_depth;
+            probe.score(pose, &frames).expect("the slab is in view")
+        };
+        let by_colour = score(true, false, &centred);
+        let by_depth = score(true, true, &centred);
+        let along = score(true, true, &candidate(&centred, 0.008, 0.0, 0.0));
+        let (none, none_by_depth) = (score(false, false, &centred), score(false, true, &centred));
+        eprintln!(
+            "ring by colour {by_colour}, by depth {by_depth}; 8 mm along {along}; no depth {none}"
+        );
+        assert!(by_depth > 0.9, "ring by depth: {by_depth}");
+        assert!(
+            by_colour < by_depth - 0.05,
+            "ring by colour {by_colour}, by depth {by_depth}"
+        );
+        // By depth the ring still tells the true pose from one 8 mm along the slab.
+        assert!(
+            along < by_depth - 0.05,
+            "8 mm along: {along}, centred {by_depth}"
+        );
+        // No depth at the pixels: colour judges the ring whatever the setting.
+        assert_eq!(none_by_depth, none);
+        assert!(
+            none < by_depth - 0.05,
+            "no depth: {none}, by depth {by_depth}"
         );
     }
 
